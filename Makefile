@@ -1,0 +1,32 @@
+# Two entry points, each self-contained on a fresh clone: `make demo` and `make test`.
+# The virtual environment is created on first use; torch is installed first and pinned to
+# the CPU build so that pip never pulls a multi-GB CUDA build.
+
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+TORCH_SPEC ?= torch==2.13.0
+STAMP := $(VENV)/.tridehaze-installed
+DEMO_DATA ?= ../shared/data/real/statue
+
+.PHONY: demo test lint install clean-venv
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/td-train vanilla-gs --data $(DEMO_DATA) --downscale 8 --max-steps 300 --output-dir outputs
+
+test: $(STAMP)
+	$(BIN)/python -m pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+clean-venv:
+	rm -rf $(VENV)

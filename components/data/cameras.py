@@ -1,0 +1,112 @@
+"""Pinhole cameras in the framework's single convention.
+
+Convention (documented in docs/data.md): **OpenCV** camera axes, x right, y down, z forward
+(the camera looks along +z), and ``camtoworlds`` map camera coordinates to world
+coordinates. This matches COLMAP and gsplat's ``viewmats`` (world-to-camera). Parsers convert
+OpenGL/Blender poses (y up, z backward) on load with :func:`opengl_to_opencv`.
+
+All images are pinhole by the time they reach a ``Cameras``: distorted inputs are undistorted
+once by the data layer, so no distortion parameters live here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+# flips the y and z camera axes: OpenGL (x right, y up, z back) <-> OpenCV (x right, y down, z fwd)
+_GL_CV_FLIP = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+
+
+def opengl_to_opencv(c2w: Tensor) -> Tensor:
+    """Convert camera-to-world matrices [..., 4, 4] from OpenGL to OpenCV camera axes."""
+    return c2w @ _GL_CV_FLIP.to(c2w)
+
+
+@dataclass
+class Cameras:
+    """A batch of N pinhole cameras (each may have its own size and intrinsics)."""
+
+    camtoworlds: Tensor  # [N, 4, 4] float, OpenCV axes
+    fx: Tensor  # [N] pixels
+    fy: Tensor  # [N]
+    cx: Tensor  # [N] principal point, pixels (pixel centres at +0.5)
+    cy: Tensor  # [N]
+    width: Tensor  # [N] int64
+    height: Tensor  # [N] int64
+
+    def __post_init__(self) -> None:
+        n = self.camtoworlds.shape[0]
+        if self.camtoworlds.shape != (n, 4, 4):
+            raise ValueError(f"camtoworlds must be [N, 4, 4], got {tuple(self.camtoworlds.shape)}")
+        for name in ("fx", "fy", "cx", "cy", "width", "height"):
+            t = getattr(self, name)
+            if t.shape != (n,):
+                raise ValueError(f"{name} must be [{n}], got {tuple(t.shape)}")
+
+    def __len__(self) -> int:
+        return self.camtoworlds.shape[0]
+
+    def __getitem__(self, idx: int | slice | list[int] | Tensor) -> Cameras:
+        if isinstance(idx, int):
+            idx = [idx]
+        return Cameras(
+            camtoworlds=self.camtoworlds[idx],
+            fx=self.fx[idx],
+            fy=self.fy[idx],
+            cx=self.cx[idx],
+            cy=self.cy[idx],
+            width=self.width[idx],
+            height=self.height[idx],
+        )
+
+    @property
+    def device(self) -> torch.device:
+        return self.camtoworlds.device
+
+    def to(self, device: torch.device | str) -> Cameras:
+        return Cameras(*(getattr(self, f).to(device) for f in _FIELDS))
+
+    def Ks(self) -> Tensor:  # noqa: N802 - conventional name
+        """Intrinsic matrices [N, 3, 3]."""
+        K = torch.zeros(len(self), 3, 3, dtype=self.fx.dtype, device=self.device)
+        K[:, 0, 0], K[:, 1, 1] = self.fx, self.fy
+        K[:, 0, 2], K[:, 1, 2] = self.cx, self.cy
+        K[:, 2, 2] = 1.0
+        return K
+
+    def viewmats(self) -> Tensor:
+        """World-to-camera matrices [N, 4, 4] (gsplat's ``viewmats``), computed exactly for rigid poses."""
+        R = self.camtoworlds[:, :3, :3]  # [N, 3, 3]
+        t = self.camtoworlds[:, :3, 3:]  # [N, 3, 1]
+        out = torch.zeros_like(self.camtoworlds)
+        out[:, :3, :3] = R.transpose(1, 2)
+        out[:, :3, 3:] = -R.transpose(1, 2) @ t
+        out[:, 3, 3] = 1.0
+        return out
+
+    @property
+    def centers(self) -> Tensor:
+        """Camera centres in world coordinates [N, 3]."""
+        return self.camtoworlds[:, :3, 3]
+
+    def rescaled(self, scale_x: Tensor | float, scale_y: Tensor | float, width: Tensor, height: Tensor) -> Cameras:
+        """Cameras for images resized by (scale_x, scale_y) to the given integer sizes."""
+        return replace(
+            self,
+            fx=self.fx * scale_x,
+            fy=self.fy * scale_y,
+            cx=self.cx * scale_x,
+            cy=self.cy * scale_y,
+            width=width.to(torch.int64),
+            height=height.to(torch.int64),
+        )
+
+    @staticmethod
+    def cat(cams: list[Cameras]) -> Cameras:
+        return Cameras(*(torch.cat([getattr(c, f) for c in cams]) for f in _FIELDS))
+
+
+_FIELDS = ("camtoworlds", "fx", "fy", "cx", "cy", "width", "height")

@@ -1,0 +1,3 @@
+"""Loss bank: registered loss terms (kind ``loss``)."""
+
+from components.losses import reconstruction  # noqa: F401  (registers)

@@ -1,0 +1,1 @@
+"""Assembly, training loop and evaluation."""

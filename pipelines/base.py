@@ -1,0 +1,61 @@
+"""The contract between the training engine and a pipeline.
+
+The trainer, the evaluator and (later) the viewer only talk to :class:`Pipeline`; they never
+know which model, medium or rasterizer a method uses. Outputs are named tensors so that a
+viewer can list whatever a pipeline returns.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+from components.data.cameras import Cameras
+
+
+@dataclass
+class StepResult:
+    """What one training step produced."""
+
+    loss: Tensor  # [] scalar with grad
+    metrics: dict[str, float] = field(default_factory=dict)
+    """Scalar diagnostics for the progress bar and logs (already detached floats)."""
+
+
+class Pipeline(nn.Module, ABC):
+    """A trainable method: data access, model(s), losses and per-step hooks."""
+
+    @abstractmethod
+    def train_loss(self, step: int) -> StepResult:
+        """Render one training batch and return its loss (backward is the trainer's job)."""
+
+    @abstractmethod
+    def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
+        """Trainable parameters by name with their base learning rates."""
+
+    def after_backward(self, step: int) -> None:  # noqa: B027 - optional hook
+        """Hook after ``loss.backward()`` (e.g. collect densification statistics)."""
+
+    def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:  # noqa: B027
+        """Hook after the optimizers stepped (e.g. densify/prune, editing optimizer state)."""
+
+    @abstractmethod
+    def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:
+        """Render one camera ([1]) into named outputs, each [H, W, C]."""
+
+    @abstractmethod
+    def output_names(self) -> list[str]:
+        """Names :meth:`render` returns (e.g. clean, hazy, depth, alpha)."""
+
+    def stats(self) -> dict[str, float]:
+        """Scalars worth showing (e.g. Gaussian count)."""
+        return {}
+
+    @property
+    def device(self) -> torch.device:
+        for p in self.parameters():
+            return p.device
+        return torch.device("cpu")

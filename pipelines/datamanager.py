@@ -1,0 +1,62 @@
+"""Serves training views and their images to a pipeline, deterministically from (seed, step)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from components.data.cameras import Cameras
+from components.data.images import read_image
+from components.data.scene import SceneData
+
+
+class DataManager:
+    """Holds a scene's cameras and lazily loaded images (uint8 in host memory, float on demand).
+
+    The training view order is a fresh permutation of the train split per epoch, derived from
+    ``(seed, epoch)`` alone, so a resumed run sees exactly the views an uninterrupted one would.
+    """
+
+    def __init__(self, scene: SceneData, device: torch.device, seed: int = 0) -> None:
+        self.scene = scene
+        self.device = device
+        self.seed = seed
+        self._images: dict[int, Tensor] = {}  # idx -> [H, W, 3] uint8
+        self._clean: dict[int, Tensor] = {}
+        self.cameras = scene.cameras.to(device)
+
+    @property
+    def train_indices(self) -> list[int]:
+        return self.scene.train_indices
+
+    @property
+    def test_indices(self) -> list[int]:
+        return self.scene.test_indices
+
+    def train_index(self, step: int) -> int:
+        """The training view used at ``step``."""
+        n = len(self.train_indices)
+        epoch, pos = divmod(step, n)
+        gen = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+        return self.train_indices[int(torch.randperm(n, generator=gen)[pos])]
+
+    def camera(self, idx: int) -> Cameras:  # [1]
+        return self.cameras[idx]
+
+    def image(self, idx: int) -> Tensor:
+        """The (hazy) input image of view ``idx``: [H, W, 3] float in [0, 1] on the device."""
+        if idx not in self._images:
+            self._images[idx] = torch.from_numpy(read_image(self.scene.image_paths[idx]))
+        return self._to_float(self._images[idx])
+
+    def clean_image(self, idx: int) -> Tensor | None:
+        """The haze-free reference of view ``idx`` ([H, W, 3]) or None when the dataset has none."""
+        path = self.scene.clean_paths[idx]
+        if path is None:
+            return None
+        if idx not in self._clean:
+            self._clean[idx] = torch.from_numpy(read_image(path))
+        return self._to_float(self._clean[idx])
+
+    def _to_float(self, img: Tensor) -> Tensor:
+        return img.to(self.device, non_blocking=True).float() / 255.0

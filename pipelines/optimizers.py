@@ -1,0 +1,54 @@
+"""One Adam optimizer per named parameter group (so densification can edit each one's state)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+
+@dataclass
+class OptimizerConfig:
+    """Adam settings shared by every parameter group."""
+
+    eps: float = 1e-15
+    """Adam epsilon (3DGS uses 1e-15)."""
+    means_lr_final_ratio: float = 0.01
+    """The means' learning rate decays exponentially to this fraction of its start by the last step."""
+
+
+class Optimizers:
+    """Named Adam optimizers with an exponential schedule on the means."""
+
+    def __init__(self, groups: dict[str, tuple[nn.Parameter, float]], config: OptimizerConfig, max_steps: int):
+        self.config = config
+        self.max_steps = max(max_steps, 1)
+        self.base_lr = {name: lr for name, (_, lr) in groups.items()}
+        self.optimizers: dict[str, torch.optim.Optimizer] = {
+            name: torch.optim.Adam([{"params": [p], "lr": lr, "name": name}], eps=config.eps)
+            for name, (p, lr) in groups.items()
+        }
+
+    def zero_grad(self) -> None:
+        for opt in self.optimizers.values():
+            opt.zero_grad(set_to_none=True)
+
+    def step(self) -> None:
+        for opt in self.optimizers.values():
+            opt.step()
+
+    def schedule(self, step: int) -> None:
+        """Set learning rates for ``step`` (only ``means`` decays)."""
+        if "means" in self.optimizers:
+            ratio = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
+            for g in self.optimizers["means"].param_groups:
+                g["lr"] = self.base_lr["means"] * ratio
+
+    def state_dict(self) -> dict:
+        return {name: opt.state_dict() for name, opt in self.optimizers.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for name, opt in self.optimizers.items():
+            if name in state:
+                opt.load_state_dict(state[name])

@@ -1,0 +1,175 @@
+"""The training engine: run folder, optimisation loop, logging, checkpoints, final evaluation.
+
+It knows only the :class:`~pipelines.base.Pipeline` contract, never a concrete model.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+from components.data.loader import load_scene
+from pipelines.base import Pipeline
+from pipelines.checkpoint import checkpoint_path, save_checkpoint
+from pipelines.config import TrainerConfig
+from pipelines.datamanager import DataManager
+from pipelines.evaluate import evaluate_split
+from pipelines.optimizers import Optimizers
+from pipelines.run_config import save_config, write_text_atomic
+from tridehaze_plugin.errors import ConfigError
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    steps: int
+    seconds: float
+    metrics: dict[str, Any]
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"--device {name} was asked for but CUDA is not available", fix="use --device cpu")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def make_run_dir(cfg: TrainerConfig, scene_name: str) -> Path:
+    """OUTPUT/<scene>/<method>/<timestamp>/, never reusing an existing folder."""
+    stamp = cfg.timestamp or datetime.now().strftime("%Y-%m-%d_%H%M%S")
+    base = cfg.output_dir / scene_name / cfg.method_name / stamp
+    run_dir, n = base, 1
+    while run_dir.exists():
+        run_dir = base.with_name(f"{stamp}-{n}")
+        n += 1
+    run_dir.mkdir(parents=True)
+    return run_dir
+
+
+class Trainer:
+    """Builds the pieces from a config and runs the optimisation loop."""
+
+    def __init__(self, config: TrainerConfig, console: Console | None = None) -> None:
+        self.config = config
+        self.console = console or Console(stderr=False)
+
+    def setup(self) -> None:
+        cfg = self.config
+        if cfg.threads is not None:
+            torch.set_num_threads(cfg.threads)
+        self.device = resolve_device(cfg.device)
+        seed_everything(cfg.seed)
+        scene = load_scene(cfg.dataset)
+        if not scene.train_indices:
+            raise ConfigError("the dataset has no training views", where=str(scene.root))
+        self.datamanager = DataManager(scene, self.device, seed=cfg.seed)
+        self.pipeline: Pipeline = cfg.pipeline.setup(self.datamanager, seed=cfg.seed)
+        self.optimizers = Optimizers(self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps)
+        self.run_dir = make_run_dir(cfg, scene.name)
+        save_config(cfg, self.run_dir / "config.yml")
+        write_text_atomic(
+            self.run_dir / "dataparser_transforms.json", json.dumps(scene.transform.to_dict(), indent=2)
+        )
+        self.console.print(
+            f"[bold]{cfg.method_name}[/] on [bold]{scene.name}[/]: {len(scene.train_indices)} train / "
+            f"{len(scene.test_indices)} test views, {int(self.pipeline.stats().get('gaussians', 0))} Gaussians, "
+            f"device {self.device}, {torch.get_num_threads()} threads"
+        )
+        self.console.print(f"run folder: {self.run_dir}")
+
+    # ------------------------------------------------------------------------------- loop
+    def train(self) -> TrainResult:
+        if not hasattr(self, "pipeline"):
+            self.setup()
+        cfg, pipe, opt = self.config, self.pipeline, self.optimizers
+        log_path = self.run_dir / "logs" / "metrics.jsonl"
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        its = 0.0
+        interactive = self.console.is_terminal
+        progress = Progress(
+            TextColumn("[bold]train[/]"),
+            BarColumn(),
+            TextColumn("step {task.completed}/{task.total}"),
+            TextColumn("loss {task.fields[loss]:.4f}"),
+            TextColumn("PSNR {task.fields[psnr]:.2f}"),
+            TextColumn("{task.fields[its]:.2f} it/s"),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not interactive,
+        )
+        metrics: dict[str, float] = {}
+        with progress, log_path.open("a", encoding="utf-8") as log:
+            task = progress.add_task("train", total=cfg.max_steps, loss=math.nan, psnr=math.nan, its=0.0)
+            for step in range(cfg.max_steps):
+                t0 = time.perf_counter()
+                opt.schedule(step)
+                result = pipe.train_loss(step)
+                opt.zero_grad()
+                result.loss.backward()
+                pipe.after_backward(step)
+                opt.step()
+                pipe.after_optimizer_step(step, opt.optimizers)
+                dt = time.perf_counter() - t0
+                its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
+                metrics = {"loss": float(result.loss.detach()), **result.metrics}
+                progress.update(task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its)
+                done = step + 1
+                if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
+                    row = {"step": done, "time": time.perf_counter() - start, "its": its, **metrics, **pipe.stats()}
+                    log.write(json.dumps(row) + "\n")
+                    log.flush()
+                    if not interactive and (done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps):
+                        self.console.print(
+                            f"step {done}/{cfg.max_steps}  loss {metrics['loss']:.4f}  "
+                            f"PSNR {metrics.get('psnr', math.nan):.2f}  {its:.2f} it/s"
+                        )
+                if done % cfg.steps_per_save == 0 or done == cfg.max_steps:
+                    self.save(done)
+        seconds = time.perf_counter() - start
+        final: dict[str, Any] = {"train_seconds": seconds, "steps": cfg.max_steps, **pipe.stats()}
+        final.update({f"train_{k}": v for k, v in metrics.items()})
+        if cfg.eval_at_end and self.datamanager.test_indices:
+            final.update(evaluate_split(pipe, self.datamanager, "test"))
+        write_text_atomic(self.run_dir / "eval" / "metrics.json", json.dumps(final, indent=2))
+        self._print_summary(final)
+        return TrainResult(self.run_dir, cfg.max_steps, seconds, final)
+
+    def save(self, step: int) -> Path:
+        payload = {
+            "step": step,
+            "method": self.config.method_name,
+            "pipeline": self.pipeline.state_dict(),
+            "optimizers": self.optimizers.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+        }
+        return save_checkpoint(checkpoint_path(self.run_dir, step), payload)
+
+    def _print_summary(self, final: dict[str, Any]) -> None:
+        shown = {k: v for k, v in final.items() if isinstance(v, (int, float))}
+        parts = [f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()]
+        self.console.print("[bold green]done[/]: " + ", ".join(parts))
+        self.console.print(f"outputs: {self.run_dir}")
+
+
+def default_threads() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -1,0 +1,58 @@
+"""``td-train METHOD [--data DIR] [options]``: train a registered method.
+
+``td-train --load-config RUN/config.yml [overrides]`` re-runs a saved configuration (read
+safely: values are merged into the method's preset, nothing in the file is executed).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import tyro
+
+from pipelines.config import TrainerConfig
+from pipelines.run_config import load_config
+from pipelines.trainer import Trainer
+from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.config import validate
+from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.registry import Registry, load_all
+
+DESCRIPTION = "Train a method on a dataset folder. Pick a method, then see `td-train METHOD --help`."
+
+
+def method_union(registry: Registry) -> type:
+    """A tyro subcommand type with one subcommand per registered method preset."""
+    specs = registry.entries("method")
+    defaults = {e.name: e.obj.make_config() for e in specs}
+    descriptions = {e.name: e.description for e in specs}
+    return tyro.extras.subcommand_type_from_defaults(defaults, descriptions, prefix_names=False)
+
+
+def parse_args(argv: list[str]) -> TrainerConfig:
+    registry = load_all()
+    if "--load-config" in argv:
+        i = argv.index("--load-config")
+        if i + 1 >= len(argv):
+            raise ConfigError("--load-config needs a path to a run's config.yml")
+        default = load_config(argv[i + 1])
+        rest = argv[:i] + argv[i + 2 :]
+        cfg = tyro.cli(TrainerConfig, args=rest, default=default, prog="td-train", description=DESCRIPTION)
+    else:
+        cfg = tyro.cli(method_union(registry), args=argv, prog="td-train", description=DESCRIPTION)
+    validate(cfg, registry)
+    cfg.check_values()
+    return cfg
+
+
+def main(argv: list[str] | None = None) -> None:
+    cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    Trainer(cfg).train()
+
+
+def entrypoint() -> None:
+    run_cli(main)
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,208 @@
+"""Typed dataclass configs: the base class, registry-backed choices and safe YAML round trips.
+
+Configs are plain dataclasses so that tyro can turn them into a CLI (each field's docstring
+becomes its ``--help`` text). A run's resolved config is written as ``config.yml`` using only
+YAML primitives, and read back by *merging those primitives into the method's default config*
+with type checks: nothing in the file can name a class or execute code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path, PurePath
+from typing import Any, Literal, Union, get_args, get_origin
+
+import yaml
+
+from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.registry import REGISTRY, Registry
+
+
+@dataclass(frozen=True)
+class RegistryChoice:
+    """Marks a ``str`` field as a name in the registry, e.g. ``Annotated[str, RegistryChoice("medium")]``.
+
+    Kept as a string (not a Literal) so that plugins can add names without changing config types;
+    :func:`validate` checks the name right after parsing so a typo fails before any work starts.
+    """
+
+    kind: str
+    allow: tuple[str, ...] = ()
+    """Extra accepted values that are not registry names (e.g. ``"auto"``)."""
+
+
+@dataclass
+class ComponentConfig:
+    """Base for every component config: a dataclass that knows how to build its component."""
+
+    def setup(self, **kwargs: Any) -> Any:
+        raise NotImplementedError(f"{type(self).__name__} does not build a component")
+
+
+# --------------------------------------------------------------------------------------
+# validation
+
+
+def validate(cfg: Any, registry: Registry | None = None, _prefix: str = "") -> None:
+    """Check every :class:`RegistryChoice` field (recursively) names a registered component."""
+    registry = registry or REGISTRY
+    hints = _hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        flag = f"--{_prefix}{f.name}".replace("_", "-")
+        for meta in getattr(hints.get(f.name), "__metadata__", ()):
+            if isinstance(meta, RegistryChoice) and value not in meta.allow and (meta.kind, value) not in registry:
+                raise ConfigError(registry.unknown_message(meta.kind, value), where=flag)
+        if dataclasses.is_dataclass(value):
+            validate(value, registry, f"{_prefix}{f.name}.")
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+# --------------------------------------------------------------------------------------
+# dataclass <-> primitive dict
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """Dataclass to YAML-safe primitives (Paths become strings, tuples lists)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(cfg):
+        out[f.name] = _to_primitive(getattr(cfg, f.name))
+    return out
+
+
+def _to_primitive(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_dict(value)
+    if isinstance(value, PurePath):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return [_to_primitive(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _to_primitive(v) for k, v in value.items()}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"cannot serialise config value of type {type(value).__name__}: {value!r}")
+
+
+def merge_dict(default: Any, data: dict[str, Any], where: str = "config") -> Any:
+    """Return a copy of dataclass ``default`` with ``data`` merged in, checking every type."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"expected a mapping, got {type(data).__name__}", where=where)
+    hints = _hints(type(default))
+    names = {f.name for f in dataclasses.fields(default)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(
+            f"unknown config key(s) {', '.join(unknown)}",
+            where=where,
+            fix="the file may come from another version or method; remove the key(s)",
+        )
+    changes = {}
+    for name, raw in data.items():
+        current = getattr(default, name)
+        changes[name] = _coerce(raw, hints[name], current, f"{where}.{name}")
+    return dataclasses.replace(default, **changes)
+
+
+def _coerce(raw: Any, tp: Any, current: Any, where: str) -> Any:
+    origin = get_origin(tp)
+    if origin is typing.Annotated:
+        return _coerce(raw, get_args(tp)[0], current, where)
+    if dataclasses.is_dataclass(current) and not isinstance(current, type):
+        return merge_dict(current, raw, where)
+    if origin in (Union, types.UnionType):
+        args = get_args(tp)
+        if raw is None and type(None) in args:
+            return None
+        errors = []
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _coerce(raw, arg, current if _isinstance_loose(current, arg) else None, where)
+            except ConfigError as exc:
+                errors.append(exc.what)
+        raise ConfigError(f"value {raw!r} matches none of {tp}: {'; '.join(errors)}", where=where)
+    if origin is Literal:
+        if raw not in get_args(tp):
+            raise ConfigError(f"value {raw!r} is not one of {list(get_args(tp))}", where=where)
+        return raw
+    if origin in (list, tuple):
+        if not isinstance(raw, (list, tuple)):
+            raise ConfigError(f"expected a list, got {type(raw).__name__}", where=where)
+        args = get_args(tp)
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(args) != len(raw):
+                raise ConfigError(f"expected {len(args)} items, got {len(raw)}", where=where)
+            return tuple(_coerce(r, a, None, f"{where}[{i}]") for i, (r, a) in enumerate(zip(raw, args)))
+        item_tp = args[0] if args else Any
+        items = [_coerce(r, item_tp, None, f"{where}[{i}]") for i, r in enumerate(raw)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(raw, dict):
+            raise ConfigError(f"expected a mapping, got {type(raw).__name__}", where=where)
+        kt, vt = get_args(tp) or (Any, Any)
+        return {_coerce(k, kt, None, where): _coerce(v, vt, None, f"{where}.{k}") for k, v in raw.items()}
+    if tp is Any:
+        return raw
+    if tp in (Path, PurePath):
+        if not isinstance(raw, str):
+            raise ConfigError(f"expected a path string, got {type(raw).__name__}", where=where)
+        return Path(raw)
+    if tp is bool:
+        if not isinstance(raw, bool):
+            raise ConfigError(f"expected true/false, got {raw!r}", where=where)
+        return raw
+    if tp is int:
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise ConfigError(f"expected an integer, got {raw!r}", where=where)
+        return raw
+    if tp is float:
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+            raise ConfigError(f"expected a number, got {raw!r}", where=where)
+        return float(raw)
+    if tp is str:
+        if not isinstance(raw, str):
+            raise ConfigError(f"expected a string, got {raw!r}", where=where)
+        return raw
+    if tp is type(None):
+        if raw is not None:
+            raise ConfigError(f"expected null, got {raw!r}", where=where)
+        return None
+    raise ConfigError(f"unsupported config type {tp}", where=where)
+
+
+def _isinstance_loose(value: Any, tp: Any) -> bool:
+    try:
+        return isinstance(value, get_origin(tp) or tp)
+    except TypeError:
+        return False
+
+
+# --------------------------------------------------------------------------------------
+# YAML files
+
+
+def dump_yaml(cfg: Any, header: dict[str, Any] | None = None) -> str:
+    data = dict(header or {})
+    data.update(to_dict(cfg))
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def read_yaml_mapping(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping with ``yaml.safe_load`` (no Python tags, no object construction)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}", fix="pass the config.yml inside a run folder")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"config file is not valid YAML: {first}", where=str(path)) from None
+    if not isinstance(data, dict):
+        raise ConfigError("config file does not hold a mapping", where=str(path))
+    return data
