@@ -6,12 +6,12 @@ import torch
 from torch import Tensor
 
 from components.data.cameras import Cameras
-from components.data.images import read_image
+from components.data.dataset import ImageSet
 from components.data.scene import SceneData
 
 
 class DataManager:
-    """Holds a scene's cameras and lazily loaded images (uint8 in host memory, float on demand).
+    """Holds a scene's cameras and lazily loaded images (decoded once, float on demand).
 
     The training view order is a fresh permutation of the train split per epoch, derived from
     ``(seed, epoch)`` alone, so a resumed run sees exactly the views an uninterrupted one would.
@@ -21,8 +21,8 @@ class DataManager:
         self.scene = scene
         self.device = device
         self.seed = seed
-        self._images: dict[int, Tensor] = {}  # idx -> [H, W, 3] uint8
-        self._clean: dict[int, Tensor] = {}
+        self._images = ImageSet.from_scene(scene, "image", device)
+        self._clean = ImageSet.from_scene(scene, "clean", device)
         self.cameras = scene.cameras.to(device)
 
     @property
@@ -45,18 +45,8 @@ class DataManager:
 
     def image(self, idx: int) -> Tensor:
         """The (hazy) input image of view ``idx``: [H, W, 3] float in [0, 1] on the device."""
-        if idx not in self._images:
-            self._images[idx] = torch.from_numpy(read_image(self.scene.image_paths[idx]))
-        return self._to_float(self._images[idx])
+        return self._images[idx]
 
     def clean_image(self, idx: int) -> Tensor | None:
         """The haze-free reference of view ``idx`` ([H, W, 3]) or None when the dataset has none."""
-        path = self.scene.clean_paths[idx]
-        if path is None:
-            return None
-        if idx not in self._clean:
-            self._clean[idx] = torch.from_numpy(read_image(path))
-        return self._to_float(self._clean[idx])
-
-    def _to_float(self, img: Tensor) -> Tensor:
-        return img.to(self.device, non_blocking=True).float() / 255.0
+        return self._clean[idx] if self._clean.has(idx) else None

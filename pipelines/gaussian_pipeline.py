@@ -88,21 +88,8 @@ class GaussianPipeline(Pipeline):
 
     # ---------------------------------------------------------------------------- rendering
     def _rasterize(self, camera: Cameras, step: int | None, background: Tensor):
-        m = self.model
-        degree = m.active_sh_degree(step if step is not None else 10**9)
-        return self.rasterizer.rasterize(
-            means=m.means,
-            quats=m.normalized_quats,
-            scales=m.scales,
-            opacities=m.opacities,
-            colors=m.sh_coeffs,
-            sh_degree=degree,
-            viewmats=camera.viewmats().float(),
-            Ks=camera.Ks().float(),
-            width=int(camera.width[0]),
-            height=int(camera.height[0]),
-            background=background,
-        )
+        # no step (rendering for eval/view): all SH bands
+        return self.model.render(self.rasterizer, camera, 10**9 if step is None else step, background)
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:

@@ -92,7 +92,9 @@ class Cameras:
         """Camera centres in world coordinates [N, 3]."""
         return self.camtoworlds[:, :3, 3]
 
-    def rescaled(self, scale_x: Tensor | float, scale_y: Tensor | float, width: Tensor, height: Tensor) -> Cameras:
+    def rescaled(
+        self, scale_x: Tensor | float, scale_y: Tensor | float, width: Tensor, height: Tensor
+    ) -> Cameras:
         """Cameras for images resized by (scale_x, scale_y) to the given integer sizes."""
         return replace(
             self,

@@ -21,7 +21,8 @@ class DataConfig:
     downscale: int = 1
     """Integer image downscale factor (resized copies are cached, intrinsics scaled to match)."""
     test_every: int = 8
-    """When the dataset has no explicit split, every N-th view (0, N, 2N, ...) is held out for testing."""
+    """When the dataset has no explicit split, every N-th view (0, N, 2N, ...) is held out for testing
+    (``0``: no test split; ``1`` is rejected since it would leave nothing to train on)."""
     skip_missing_images: bool = False
     """Skip (with a warning) views whose image file is missing instead of stopping with an error."""
     center_poses: bool = True

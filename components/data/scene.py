@@ -113,6 +113,9 @@ class SceneData:
     transform: SceneTransform
     downscale: int = 1
     test_is_clean: bool = False
+    frame_names: list[str] = field(default_factory=list)
+    """[N] each view's :attr:`Frame.name` (path relative to the dataset root, unique); image_paths may
+    point into the cache, whose file names carry a hash."""
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -127,4 +130,7 @@ class SceneData:
         raise ValueError(f"unknown split {split!r}; use train, test or all")
 
     def names(self) -> list[str]:
+        """[N] view names: the dataset-relative names when known, else the image file names."""
+        if len(self.frame_names) == len(self.image_paths):
+            return list(self.frame_names)
         return [p.name for p in self.image_paths]

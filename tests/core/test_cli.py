@@ -1,0 +1,95 @@
+"""td-train / td-info from the outside: help lists methods, user mistakes give one line and exit 2."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tridehaze_plugin.cli.train import parse_args
+from tridehaze_plugin.errors import ConfigError
+
+
+def run_cli(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env.pop("TRIDEHAZE_PLUGINS", None)
+    return subprocess.run(
+        [sys.executable, "-m", "tridehaze_plugin.cli.train", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+        env=env,
+    )
+
+
+def assert_user_error(res: subprocess.CompletedProcess, *needles: str) -> None:
+    assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
+    assert "Traceback" not in res.stderr
+    lines = [ln for ln in res.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def test_help_lists_methods():
+    res = run_cli("--help")
+    assert res.returncode == 0, res.stderr
+    assert "vanilla-gs" in res.stdout
+
+
+def test_method_help_shows_field_docs():
+    res = run_cli("vanilla-gs", "--help")
+    assert res.returncode == 0, res.stderr
+    for flag in ("--data", "--max-steps", "--output-dir", "--seed", "--downscale", "--pipeline.rasterizer.backend"):
+        assert flag in res.stdout, flag
+    assert "Number of optimisation steps" in res.stdout  # docstrings become help text
+
+
+def test_missing_data_is_one_line_exit_2(tmp_path):
+    assert_user_error(run_cli("vanilla-gs", "--output-dir", str(tmp_path)), "--data")
+    assert_user_error(
+        run_cli("vanilla-gs", "--data", str(tmp_path / "absent"), "--output-dir", str(tmp_path)), "absent"
+    )
+    assert not any(tmp_path.iterdir()), "nothing may be written for a failed start"
+
+
+def test_unknown_backend_is_one_line_exit_2():
+    assert_user_error(
+        run_cli("vanilla-gs", "--pipeline.rasterizer.backend", "warp-drive"),
+        "unknown rasterizer 'warp-drive'",
+        "--pipeline.rasterizer.backend",
+    )
+
+
+def test_unknown_method_and_bad_flag_exit_2():
+    assert run_cli("no-such-method").returncode == 2
+    assert run_cli("vanilla-gs", "--max-steps", "many").returncode == 2
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--max-steps", "0"], "--max-steps"),
+        (["--max-steps", "-5"], "--max-steps"),
+        (["--downscale", "0"], "--downscale"),
+        (["--threads", "0"], "--threads"),
+        (["--device", "tpu"], "--device"),
+        (["--pipeline.background", "2", "0", "0"], "--pipeline.background"),
+        (["--pipeline.loss.lambda-ssim", "1.5"], "lambda-ssim"),
+    ],
+)
+def test_out_of_range_values_are_config_errors(args, needle):
+    with pytest.raises(ConfigError, match=needle.replace(".", r"\.")):
+        parse_args(["vanilla-gs", *args])
+
+
+def test_load_config_missing_file_exit_2(tmp_path):
+    assert_user_error(run_cli("--load-config", str(tmp_path / "nope.yml")), "nope.yml")
+
+
+def test_overrides_reach_nested_configs():
+    cfg = parse_args(["vanilla-gs", "--max-steps", "5", "--pipeline.model.sh-degree", "1", "--seed", "3"])
+    assert (cfg.max_steps, cfg.pipeline.model.sh_degree, cfg.seed) == (5, 1, 3)
