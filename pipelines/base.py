@@ -50,7 +50,7 @@ class Pipeline(nn.Module, ABC):
     def output_names(self) -> list[str]:
         """Names :meth:`render` returns (e.g. clean, hazy, depth, alpha)."""
 
-    def stats(self) -> dict[str, float]:
+    def stats(self) -> dict[str, float | int]:
         """Scalars worth showing (e.g. Gaussian count)."""
         return {}
 

@@ -101,5 +101,5 @@ class GaussianPipeline(Pipeline):
     def output_names(self) -> list[str]:
         return ["clean", "hazy", "depth", "alpha"]
 
-    def stats(self) -> dict[str, float]:
-        return {"gaussians": float(self.model.num_gaussians)}
+    def stats(self) -> dict[str, float | int]:
+        return {"gaussians": self.model.num_gaussians}

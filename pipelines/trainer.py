@@ -70,7 +70,8 @@ class Trainer:
 
     def __init__(self, config: TrainerConfig, console: Console | None = None) -> None:
         self.config = config
-        self.console = console or Console(stderr=False)
+        # soft_wrap: paths and metric lines stay on one line in logs and pipes
+        self.console = console or Console(soft_wrap=True)
 
     def setup(self) -> None:
         cfg = self.config
@@ -166,7 +167,7 @@ class Trainer:
 
     def _print_summary(self, final: dict[str, Any]) -> None:
         shown = {k: v for k, v in final.items() if isinstance(v, (int, float))}
-        parts = [f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()]
+        parts = [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()]
         self.console.print("[bold green]done[/]: " + ", ".join(parts))
         self.console.print(f"outputs: {self.run_dir}")
 

@@ -1,0 +1,264 @@
+"""The 3D Gaussian scene model (3DGS parameterisation) and its config.
+
+Parameters are stored *unconstrained* (log-scales, opacity logits, raw quaternions) in one
+``nn.ParameterDict`` so that a densification strategy can replace any of them by name and the
+trainer can build its optimizer from :meth:`GaussianModel.param_groups` without knowing them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any
+
+import torch
+from torch import Tensor, nn
+
+from components.gaussians.knn import knn_distances
+from components.gaussians.sh import num_sh_bases, rgb_to_sh
+from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.registry import REGISTRY, register
+
+if TYPE_CHECKING:
+    from components.data.cameras import Cameras
+    from components.rasterizers.base import RasterizeOutput, Rasterizer
+
+PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
+"""Every parameter of a :class:`GaussianModel`, in a fixed order (first dim is always N)."""
+
+
+@dataclass
+class GaussianModelConfig(ComponentConfig):
+    """How the Gaussians are initialised and how fast each of their parameters learns."""
+
+    backend: Annotated[str, RegistryChoice("gaussian_model")] = "3dgs"
+    """Gaussian model implementation (registry name)."""
+    sh_degree: int = 3
+    """Highest spherical-harmonics degree of the view-dependent colour (0..3)."""
+    sh_degree_interval: int = 1000
+    """One more SH band becomes active every this many steps (degree 0 at step 0)."""
+    init_opacity: float = 0.1
+    """Opacity of every Gaussian at initialisation."""
+    init_scale_mult: float = 1.0
+    """Multiplier on the initial scale (RMS distance to the 3 nearest seed points)."""
+    random_init_points: int = 20000
+    """Number of random Gaussians when the dataset has no seed point cloud."""
+    random_init_extent: float = 1.5
+    """Random Gaussians fill a cube of half-size ``random_init_extent * scene_extent``."""
+    max_init_points: int | None = None
+    """Randomly subsample the seed cloud to at most this many points (None: keep all)."""
+    means_lr: float = 1.6e-4
+    """Learning rate of the centres, multiplied by the scene extent."""
+    scales_lr: float = 5e-3
+    """Learning rate of the log-scales."""
+    quats_lr: float = 1e-3
+    """Learning rate of the quaternions."""
+    opacities_lr: float = 5e-2
+    """Learning rate of the opacity logits."""
+    sh0_lr: float = 2.5e-3
+    """Learning rate of the DC colour coefficients."""
+    shN_lr: float | None = None
+    """Learning rate of the higher SH bands (None: ``sh0_lr / 20``)."""
+
+    def setup(  # type: ignore[override]
+        self,
+        points: Tensor | None = None,
+        colors: Tensor | None = None,
+        scene_extent: float = 1.0,
+        **kwargs: Any,
+    ) -> GaussianModel:
+        """Build the model from a seed cloud ``points [M, 3]`` / ``colors [M, 3]`` (or randomly)."""
+        cls = REGISTRY.get("gaussian_model", self.backend)
+        return cls.from_points(self, points, colors, scene_extent, **kwargs)
+
+
+class GaussianModel(nn.Module):
+    """N anisotropic 3D Gaussians with SH colour (the 3DGS model).
+
+    Registered as a class under kind ``"gaussian_model"``; :meth:`GaussianModelConfig.setup` calls
+    its ``from_points(config, points, colors, scene_extent)``, which other models must provide too.
+    """
+
+    def __init__(
+        self, config: GaussianModelConfig, params: dict[str, Tensor], scene_extent: float = 1.0
+    ) -> None:
+        super().__init__()
+        self.config = config
+        self.scene_extent = float(scene_extent)
+        missing = set(PARAM_NAMES) - set(params)
+        if missing:
+            raise ValueError(f"missing Gaussian parameters: {sorted(missing)}")
+        self.params = nn.ParameterDict({k: nn.Parameter(params[k].contiguous()) for k in PARAM_NAMES})
+
+    # ---------------------------------------------------------------- construction
+
+    @classmethod
+    def from_points(
+        cls,
+        config: GaussianModelConfig,
+        points: Tensor | None,
+        colors: Tensor | None,
+        scene_extent: float = 1.0,
+        generator: torch.Generator | None = None,
+    ) -> GaussianModel:
+        """Initialise from a seed cloud (3DGS recipe) or, without one, uniformly at random."""
+        if points is None or len(points) == 0:
+            n = config.random_init_points
+            half = config.random_init_extent * scene_extent
+            points = (torch.rand(n, 3, generator=generator) * 2.0 - 1.0) * half
+            colors = torch.rand(n, 3, generator=generator)
+        else:
+            points = torch.as_tensor(points).detach().to(torch.float32)
+            colors = torch.as_tensor(colors) if colors is not None else None
+            if points.dim() != 2 or points.shape[1] != 3:
+                raise ValueError(f"points must be [M, 3], got {list(points.shape)}")
+            if config.max_init_points is not None and points.shape[0] > config.max_init_points:
+                idx = torch.randperm(points.shape[0], generator=generator)[: config.max_init_points]
+                points = points[idx.to(points.device)]
+                colors = colors[idx.to(colors.device)] if colors is not None else None
+            if colors is None:
+                colors = torch.full_like(points, 0.5)
+            elif colors.dtype == torch.uint8:
+                colors = colors.to(points.device, torch.float32) / 255.0
+            colors = colors.to(points.device, torch.float32).clamp(0.0, 1.0)
+        n = points.shape[0]
+        dist = knn_distances(points, k=3)  # [N, 3]
+        if n > 1:
+            rms = dist.square().mean(dim=-1).sqrt()
+        else:
+            rms = torch.full((n,), 0.01 * scene_extent, device=points.device)
+        rms = rms.clamp_min(1e-7)  # duplicate points must not give log(0)
+        log_scales = torch.log(rms * config.init_scale_mult)[:, None].repeat(1, 3)
+        k = num_sh_bases(config.sh_degree)
+        params = {
+            "means": points.clone(),
+            "quats": torch.tensor([1.0, 0.0, 0.0, 0.0], device=points.device).repeat(n, 1),
+            "log_scales": log_scales,
+            "opacity_logits": torch.full((n,), _logit(config.init_opacity), device=points.device),
+            "sh0": rgb_to_sh(colors)[:, None, :],
+            "shN": torch.zeros(n, k - 1, 3, device=points.device),
+        }
+        return cls(config, params, scene_extent)
+
+    # ---------------------------------------------------------------- views of the parameters
+
+    @property
+    def means(self) -> Tensor:
+        return self.params["means"]  # [N, 3]
+
+    @property
+    def quats(self) -> Tensor:
+        return self.params["quats"]  # [N, 4] (w, x, y, z), unnormalised
+
+    @property
+    def log_scales(self) -> Tensor:
+        return self.params["log_scales"]  # [N, 3]
+
+    @property
+    def opacity_logits(self) -> Tensor:
+        return self.params["opacity_logits"]  # [N]
+
+    @property
+    def sh0(self) -> Tensor:
+        return self.params["sh0"]  # [N, 1, 3]
+
+    @property
+    def shN(self) -> Tensor:  # noqa: N802 - conventional name
+        return self.params["shN"]  # [N, K-1, 3]
+
+    @property
+    def scales(self) -> Tensor:
+        return torch.exp(self.log_scales)  # [N, 3]
+
+    @property
+    def opacities(self) -> Tensor:
+        return torch.sigmoid(self.opacity_logits)  # [N]
+
+    @property
+    def normalized_quats(self) -> Tensor:
+        return self.quats / self.quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # [N, 4]
+
+    @property
+    def sh_coeffs(self) -> Tensor:
+        return torch.cat([self.sh0, self.shN], dim=1)  # [N, K, 3]
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.means.shape[0]
+
+    def active_sh_degree(self, step: int) -> int:
+        """SH degree in use at a training step: one more band every ``sh_degree_interval`` steps."""
+        interval = max(1, self.config.sh_degree_interval)
+        return min(self.config.sh_degree, max(0, step) // interval)
+
+    # ---------------------------------------------------------------- training helpers
+
+    def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
+        """Every parameter with its learning rate, so the trainer builds optimizers generically."""
+        cfg = self.config
+        lrs = {
+            "means": cfg.means_lr * self.scene_extent,
+            "quats": cfg.quats_lr,
+            "log_scales": cfg.scales_lr,
+            "opacity_logits": cfg.opacities_lr,
+            "sh0": cfg.sh0_lr,
+            "shN": cfg.shN_lr if cfg.shN_lr is not None else cfg.sh0_lr / 20.0,
+        }
+        return {name: (self.params[name], lrs[name]) for name in PARAM_NAMES}
+
+    def replace_params(self, new: dict[str, Tensor]) -> None:
+        """Swap parameters by name (e.g. after densification); all must keep one common N."""
+        for name, value in new.items():
+            if name not in PARAM_NAMES:
+                raise KeyError(f"unknown Gaussian parameter {name!r}")
+            self.params[name] = value if isinstance(value, nn.Parameter) else nn.Parameter(value)
+        sizes = {self.params[k].shape[0] for k in PARAM_NAMES}
+        if len(sizes) != 1:
+            raise ValueError(f"Gaussian parameters disagree on N: {sizes}")
+
+    def _load_from_state_dict(
+        self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any
+    ) -> None:
+        # checkpoints saved after densification hold a different N: resize before copying
+        resized = {}
+        for name in PARAM_NAMES:
+            key = f"{prefix}params.{name}"
+            if key in state_dict and state_dict[key].shape != self.params[name].shape:
+                resized[name] = torch.empty_like(state_dict[key], device=self.params[name].device)
+        if resized:
+            self.replace_params(resized)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def render(
+        self,
+        rasterizer: Rasterizer,
+        cameras: Cameras,
+        step: int,
+        background: Tensor | None = None,
+    ) -> RasterizeOutput:
+        """Render all ``cameras`` (they must share one image size) at the SH degree of ``step``."""
+        widths, heights = cameras.width.unique(), cameras.height.unique()
+        if widths.numel() != 1 or heights.numel() != 1:
+            raise ValueError("render() needs cameras of one size; rasterize each size separately")
+        dtype = self.means.dtype
+        return rasterizer.rasterize(
+            self.means,
+            self.quats,
+            self.scales,
+            self.opacities,
+            self.sh_coeffs,
+            cameras.viewmats().to(self.means.device, dtype),
+            cameras.Ks().to(self.means.device, dtype),
+            int(widths[0]),
+            int(heights[0]),
+            background=background,
+            sh_degree=self.active_sh_degree(step),
+        )
+
+
+def _logit(p: float) -> float:
+    p = min(max(p, 1e-6), 1.0 - 1e-6)
+    return math.log(p / (1.0 - p))
+
+
+register("gaussian_model", "3dgs", GaussianModel)

@@ -1,0 +1,80 @@
+"""Backend selection and config plumbing of the rasterizer component."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from components.rasterizers import RasterizerConfig, TorchRasterizer, resolve_backend
+from components.rasterizers.base import Rasterizer
+from tridehaze_plugin.config import validate
+from tridehaze_plugin.errors import ConfigError, PluginError
+from tridehaze_plugin.registry import REGISTRY, Registry
+
+
+class _Fake(Rasterizer):
+    ok = True
+
+    @classmethod
+    def available(cls) -> bool:
+        return cls.ok
+
+    def rasterize(self, *args, **kwargs):  # pragma: no cover - never called
+        raise NotImplementedError
+
+
+class _FakeCpu(_Fake):
+    name = "cpu"
+
+
+class _FakeGsplat(_Fake):
+    name = "gsplat"
+
+
+def test_torch_backend_is_registered_and_built_with_the_config() -> None:
+    assert REGISTRY.get("rasterizer", "torch") is TorchRasterizer
+    cfg = RasterizerConfig(backend="torch", near_plane=0.2, tile_size=8)
+    rast = cfg.setup()
+    assert isinstance(rast, TorchRasterizer) and rast.config is cfg
+    validate(cfg)
+    validate(RasterizerConfig(backend="auto"))
+    with pytest.raises(ConfigError):
+        validate(RasterizerConfig(backend="no-such-backend"))
+    with pytest.raises(PluginError):
+        RasterizerConfig(backend="no-such-backend").setup()
+
+
+def test_auto_prefers_gsplat_on_cuda_then_cpu_then_torch() -> None:
+    reg = Registry()
+    reg.register("rasterizer", "torch", TorchRasterizer)
+    assert resolve_backend("auto", reg) == "torch"
+    reg.register("rasterizer", "cpu", _FakeCpu)
+    assert resolve_backend("auto", reg) == "cpu"
+    reg.register("rasterizer", "gsplat", _FakeGsplat)
+    expect = "gsplat" if torch.cuda.is_available() else "cpu"
+    assert resolve_backend("auto", reg) == expect
+    _FakeCpu.ok = False
+    _FakeGsplat.ok = False
+    try:
+        assert resolve_backend("auto", reg) == "torch"
+        with pytest.raises(ConfigError, match="not available"):
+            resolve_backend("cpu", reg)
+    finally:
+        _FakeCpu.ok = True
+        _FakeGsplat.ok = True
+
+
+def test_rasterizer_without_config_uses_defaults() -> None:
+    rast = TorchRasterizer()
+    assert rast.config.backend == "torch" and rast.config.eps2d == 0.3 and rast.config.tile_size == 16
+
+
+def test_wrong_shapes_fail_readably() -> None:
+    rast = TorchRasterizer()
+    n = 4
+    args = [torch.zeros(n, 3), torch.zeros(n, 4), torch.ones(n, 3), torch.ones(n), torch.ones(n, 3)]
+    cams = [torch.eye(4)[None], torch.eye(3)[None]]
+    with pytest.raises(ValueError, match="quats"):
+        rast.rasterize(args[0], torch.zeros(n, 3), *args[2:], *cams, 8, 8)
+    with pytest.raises(ValueError, match="SH coefficients"):
+        rast.rasterize(*args, *cams, 8, 8, sh_degree=1)
