@@ -9,7 +9,7 @@ TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.tridehaze-installed
 DEMO_DATA ?= ../shared/data/real/statue
 
-.PHONY: demo test lint install clean-venv
+.PHONY: demo test lint install bench clean-venv
 
 install: $(STAMP)
 
@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/td-train vanilla-gs --data $(DEMO_DATA) --downscale 8 --max-steps 300 --output-dir outputs
+	$(BIN)/td-train vanilla-gs --data $(DEMO_DATA) --downscale 8 --max-steps 2000 --output-dir outputs
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
@@ -30,3 +30,7 @@ lint: $(STAMP)
 
 clean-venv:
 	rm -rf $(VENV)
+
+bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e ".[bench]"
+	$(BIN)/python benchmarks/threads.py --data $(DEMO_DATA) --downscale 8

@@ -64,7 +64,9 @@ class GaussianPipeline(Pipeline):
         ).to(device)
         self.rasterizer = config.rasterizer.setup()
         self.loss_fn = config.loss.setup()
-        self.register_buffer("background", torch.tensor(config.background, dtype=torch.float32, device=device))
+        self.register_buffer(
+            "background", torch.tensor(config.background, dtype=torch.float32, device=device)
+        )
         self._gen = torch.Generator(device="cpu").manual_seed(seed)
 
     # ----------------------------------------------------------------------------- training

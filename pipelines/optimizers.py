@@ -21,7 +21,9 @@ class OptimizerConfig:
 class Optimizers:
     """Named Adam optimizers with an exponential schedule on the means."""
 
-    def __init__(self, groups: dict[str, tuple[nn.Parameter, float]], config: OptimizerConfig, max_steps: int):
+    def __init__(
+        self, groups: dict[str, tuple[nn.Parameter, float]], config: OptimizerConfig, max_steps: int
+    ):
         self.config = config
         self.max_steps = max(max_steps, 1)
         self.base_lr = {name: lr for name, (_, lr) in groups.items()}

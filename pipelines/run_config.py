@@ -48,7 +48,9 @@ def load_config(path: Path) -> TrainerConfig:
         data.pop(key, None)
     method = data.get("method_name")
     if not isinstance(method, str):
-        raise ConfigError("config has no 'method_name'", where=str(path), fix="pass a config.yml written by td-train")
+        raise ConfigError(
+            "config has no 'method_name'", where=str(path), fix="pass a config.yml written by td-train"
+        )
     registry = load_all()
     if ("method", method) not in registry:
         raise ConfigError(registry.unknown_message("method", method), where=str(path))

@@ -133,10 +133,18 @@ class Trainer:
                 dt = time.perf_counter() - t0
                 its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
                 metrics = {"loss": float(result.loss.detach()), **result.metrics}
-                progress.update(task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its)
+                progress.update(
+                    task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its
+                )
                 done = step + 1
                 if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
-                    row = {"step": done, "time": time.perf_counter() - start, "its": its, **metrics, **pipe.stats()}
+                    row = {
+                        "step": done,
+                        "time": time.perf_counter() - start,
+                        "its": its,
+                        **metrics,
+                        **pipe.stats(),
+                    }
                     log.write(json.dumps(row) + "\n")
                     log.flush()
                     if not interactive and (done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps):

@@ -54,7 +54,11 @@ def validate(cfg: Any, registry: Registry | None = None, _prefix: str = "") -> N
         value = getattr(cfg, f.name)
         flag = f"--{_prefix}{f.name}".replace("_", "-")
         for meta in getattr(hints.get(f.name), "__metadata__", ()):
-            if isinstance(meta, RegistryChoice) and value not in meta.allow and (meta.kind, value) not in registry:
+            if (
+                isinstance(meta, RegistryChoice)
+                and value not in meta.allow
+                and (meta.kind, value) not in registry
+            ):
                 raise ConfigError(registry.unknown_message(meta.kind, value), where=flag)
         if dataclasses.is_dataclass(value):
             validate(value, registry, f"{_prefix}{f.name}.")
@@ -138,7 +142,9 @@ def _coerce(raw: Any, tp: Any, current: Any, where: str) -> Any:
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(args) != len(raw):
                 raise ConfigError(f"expected {len(args)} items, got {len(raw)}", where=where)
-            return tuple(_coerce(r, a, None, f"{where}[{i}]") for i, (r, a) in enumerate(zip(raw, args)))
+            return tuple(
+                _coerce(r, a, None, f"{where}[{i}]") for i, (r, a) in enumerate(zip(raw, args, strict=True))
+            )
         item_tp = args[0] if args else Any
         items = [_coerce(r, item_tp, None, f"{where}[{i}]") for i, r in enumerate(raw)]
         return tuple(items) if origin is tuple else items

@@ -226,7 +226,9 @@ def _load_one(
         elif callable(obj):
             obj(reg)
         else:
-            raise TypeError(f"expected a module, a MethodSpec or a callable(registry), got {type(obj).__name__}")
+            raise TypeError(
+                f"expected a module, a MethodSpec or a callable(registry), got {type(obj).__name__}"
+            )
     except Exception as exc:  # noqa: BLE001 - any plugin failure is reported, never fatal
         reg.failures.append(PluginFailure(source, target, f"{type(exc).__name__}: {exc}"))
     finally:

@@ -43,7 +43,14 @@ def test_help_lists_methods():
 def test_method_help_shows_field_docs():
     res = run_cli("vanilla-gs", "--help")
     assert res.returncode == 0, res.stderr
-    for flag in ("--data", "--max-steps", "--output-dir", "--seed", "--downscale", "--pipeline.rasterizer.backend"):
+    for flag in (
+        "--data",
+        "--max-steps",
+        "--output-dir",
+        "--seed",
+        "--downscale",
+        "--pipeline.rasterizer.backend",
+    ):
         assert flag in res.stdout, flag
     assert "Number of optimisation steps" in res.stdout  # docstrings become help text
 

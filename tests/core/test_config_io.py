@@ -70,7 +70,9 @@ def test_registry_choice_validation_names_the_flag():
     with pytest.raises(ConfigError) as err:
         validate(cfg)
     msg = str(err.value)
-    assert "unknown rasterizer 'warp-drive'" in msg and "--pipeline.rasterizer.backend" in msg and "torch" in msg
+    assert (
+        "unknown rasterizer 'warp-drive'" in msg and "--pipeline.rasterizer.backend" in msg and "torch" in msg
+    )
     cfg.pipeline.rasterizer.backend = "auto"  # allowed extra value
     validate(cfg)
 

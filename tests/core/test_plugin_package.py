@@ -78,8 +78,18 @@ def plugin_site(tmp_path_factory) -> Path:
     (pkg / "broken.py").write_text("import a_dependency_that_is_not_installed_123\n")
     target = tmp_path_factory.mktemp("toy_site")
     subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-         "--target", str(target), str(src)],
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "--target",
+            str(target),
+            str(src),
+        ],
         check=True,
     )
     assert any(p.name.startswith("toy_tridehaze_plugin-") for p in target.glob("*.dist-info"))

@@ -54,7 +54,15 @@ def test_duplicate_registration_is_an_error_unless_replace():
 
 
 def test_kinds_are_the_documented_ones():
-    assert set(KINDS) == {"rasterizer", "gaussian_model", "medium", "gradient_policy", "loss", "dataparser", "method"}
+    assert set(KINDS) == {
+        "rasterizer",
+        "gaussian_model",
+        "medium",
+        "gradient_policy",
+        "loss",
+        "dataparser",
+        "method",
+    }
 
 
 def test_env_var_plugin_module_and_callable(tmp_path, monkeypatch):

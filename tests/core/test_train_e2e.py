@@ -37,7 +37,9 @@ def _render_truth(n_views: int, seed: int = 0):
     images = []
     for c2w in poses:
         view = torch.linalg.inv(torch.from_numpy(c2w).float())[None]
-        out = rast.rasterize(means, quats, scales, opac, colors, view, K[None], W, H, background=torch.zeros(3))
+        out = rast.rasterize(
+            means, quats, scales, opac, colors, view, K[None], W, H, background=torch.zeros(3)
+        )
         images.append((out.rgb[0].clamp(0, 1).numpy() * 255).round().astype(np.uint8))
     return poses, images, means.numpy(), (colors.numpy() * 255).astype(np.uint8)
 
@@ -47,7 +49,7 @@ def tiny_scene(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("tiny_scene")
     poses, images, pts, cols = _render_truth(9)
     frames = []
-    for i, (c2w, img) in enumerate(zip(poses, images)):
+    for i, (c2w, img) in enumerate(zip(poses, images, strict=True)):
         write_image_atomic(root / "images" / f"v{i:02d}.png", img)
         frames.append({"file_path": f"images/v{i:02d}.png", "transform_matrix": (c2w @ GL_CV).tolist()})
     rng = np.random.default_rng(1)
@@ -59,9 +61,24 @@ def tiny_scene(tmp_path_factory) -> Path:
 
 def _cfg(scene: Path, out: Path, *extra: str):
     return parse_args(
-        ["vanilla-gs", "--data", str(scene), "--output-dir", str(out), "--max-steps", "60",
-         "--steps-per-save", "25", "--pipeline.rasterizer.backend", "torch", "--cache-dir", str(out / "cache"),
-         "--timestamp", "run", *extra]
+        [
+            "vanilla-gs",
+            "--data",
+            str(scene),
+            "--output-dir",
+            str(out),
+            "--max-steps",
+            "60",
+            "--steps-per-save",
+            "25",
+            "--pipeline.rasterizer.backend",
+            "torch",
+            "--cache-dir",
+            str(out / "cache"),
+            "--timestamp",
+            "run",
+            *extra,
+        ]
     )
 
 
@@ -84,6 +101,10 @@ def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path):
     assert ckpts == ["step-0000050.ckpt", "step-0000060.ckpt"]
     # reload: config equals, weights load safely and render the same image
     assert load_config(run / "config.yml") == cfg
+    # --load-config re-runs a saved config, command-line flags still override it
+    again = parse_args(["--load-config", str(run / "config.yml"), "--max-steps", "3", "--seed", "7"])
+    assert (again.max_steps, again.seed) == (3, 7)
+    assert again.pipeline == cfg.pipeline and again.dataset == cfg.dataset
     payload = load_checkpoint(latest_checkpoint(run))
     assert payload["step"] == 60
     fresh = Trainer(load_config(run / "config.yml"))

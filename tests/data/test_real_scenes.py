@@ -1,4 +1,4 @@
-"""The real COLMAP scenes shipped with the project (read-only; skipped where absent)."""
+"""The real COLMAP scenes in ../shared (read-only; skipped locally where absent, required in CI)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pycolmap
-import pytest
 
 from components.data.images import image_size, read_image
 from components.data.loader import load_scene
-
-REAL = Path("/work/shared/data/real")
-STATUE, BEER = REAL / "statue", REAL / "beer"
+from tests.conftest import require_real
 
 
 def _colmap_by_name(root: Path) -> dict[str, pycolmap.Camera]:
@@ -20,10 +17,10 @@ def _colmap_by_name(root: Path) -> dict[str, pycolmap.Camera]:
     return {f"images/{im.name}": rec.cameras[im.camera_id] for im in rec.images.values()}
 
 
-@pytest.mark.skipif(not STATUE.is_dir(), reason="real statue scene not available")
 def test_statue_per_image_sizes_and_intrinsics(make_cfg):
-    cams = _colmap_by_name(STATUE)
-    full = load_scene(make_cfg(STATUE))
+    statue = require_real("statue")
+    cams = _colmap_by_name(statue)
+    full = load_scene(make_cfg(statue))
     assert full.parser == "colmap" and len(full) == 23 and len(full.points) > 1000
     heights = set()
     for i, name in enumerate(full.names()):
@@ -33,11 +30,11 @@ def test_statue_per_image_sizes_and_intrinsics(make_cfg):
         np.testing.assert_allclose(
             [float(full.cameras.fx[i]), float(full.cameras.cy[i])], [fx, cy], rtol=1e-6
         )
-        assert full.image_paths[i] == STATUE / name  # pinhole at full size: the originals are used
+        assert full.image_paths[i] == statue / name  # pinhole at full size: the originals are used
         heights.add(cam.height)
     assert len(heights) >= 5  # the scene really mixes image heights
 
-    small = load_scene(make_cfg(STATUE, downscale=4))
+    small = load_scene(make_cfg(statue, downscale=4))
     for i, name in enumerate(small.names()):
         cam = cams[name]
         w, h = int(small.cameras.width[i]), int(small.cameras.height[i])
@@ -48,10 +45,10 @@ def test_statue_per_image_sizes_and_intrinsics(make_cfg):
         assert image_size(small.image_paths[i]) == (int(small.cameras.width[i]), int(small.cameras.height[i]))
 
 
-@pytest.mark.skipif(not BEER.is_dir(), reason="real beer scene not available")
 def test_beer_undistorted_downscaled_and_cached(make_cfg, tmp_path):
-    cams = _colmap_by_name(BEER)
-    scene = load_scene(make_cfg(BEER, downscale=4))
+    beer = require_real("beer")
+    cams = _colmap_by_name(beer)
+    scene = load_scene(make_cfg(beer, downscale=4))
     assert len(scene) == 71 and scene.parser == "colmap"
     assert len(scene.test_indices) == 9 and scene.test_indices[:2] == [0, 8]
     for i in (0, 35, 70):
@@ -69,6 +66,6 @@ def test_beer_undistorted_downscaled_and_cached(make_cfg, tmp_path):
         p = scene.image_paths[i]
         assert p.is_relative_to(tmp_path / "cache") and read_image(p).shape == (320, 180, 3), name
     mtimes = [p.stat().st_mtime_ns for p in scene.image_paths]
-    again = load_scene(make_cfg(BEER, downscale=4))
+    again = load_scene(make_cfg(beer, downscale=4))
     assert again.image_paths == scene.image_paths
     assert [p.stat().st_mtime_ns for p in again.image_paths] == mtimes

@@ -23,3 +23,6 @@ def run_cli(main: Callable[[], object]) -> None:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         raise SystemExit(130) from None
+    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly like other Unix tools
+        sys.stderr.close()
+        raise SystemExit(141) from None
