@@ -100,3 +100,19 @@ def test_load_config_missing_file_exit_2(tmp_path):
 def test_overrides_reach_nested_configs():
     cfg = parse_args(["vanilla-gs", "--max-steps", "5", "--pipeline.model.sh-degree", "1", "--seed", "3"])
     assert (cfg.max_steps, cfg.pipeline.model.sh_degree, cfg.seed) == (5, 1, 3)
+
+
+def test_bad_dataset_through_the_cli_is_one_line(tmp_path):
+    """The loader's DataErrors reach the user as one line and exit 2, with nothing written."""
+    from tests.data.synth import write_colmap, write_nerfstudio
+
+    corrupt = tmp_path / "corrupt"
+    write_nerfstudio(corrupt, n=3)
+    (corrupt / "images" / "frame_001.png").write_bytes(b"\x89PNG but not really" * 3)
+    fisheye = tmp_path / "fisheye"
+    write_colmap(fisheye, n=2, model="FOV", params=[30.0, 30.0, 20.0, 15.0, 0.01])
+    out = tmp_path / "out"
+    for root, needle in ((corrupt, "frame_001.png"), (fisheye, "FOV")):
+        res = run_cli("vanilla-gs", "--data", str(root), "--output-dir", str(out), "--cache-dir", str(tmp_path / "c"))
+        assert_user_error(res, needle)
+    assert not out.exists()
