@@ -13,6 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from components.data.cameras import Cameras
+from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModelConfig
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.rasterizers.base import RasterizerConfig
@@ -28,6 +29,8 @@ class PipelineConfig:
 
     model: GaussianModelConfig = field(default_factory=GaussianModelConfig)
     """The clean scene: 3D Gaussians."""
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    """Adaptive density control (clone / split / prune / opacity reset)."""
     rasterizer: RasterizerConfig = field(default_factory=RasterizerConfig)
     """Differentiable rasterizer backend."""
     loss: ReconstructionLossConfig = field(default_factory=ReconstructionLossConfig)
@@ -43,14 +46,16 @@ class PipelineConfig:
         if not 0.0 <= self.loss.lambda_ssim <= 1.0:
             raise ConfigError(f"--pipeline.loss.lambda-ssim must be in [0, 1], got {self.loss.lambda_ssim}")
 
-    def setup(self, datamanager: DataManager, seed: int = 0) -> GaussianPipeline:
-        return GaussianPipeline(self, datamanager, seed)
+    def setup(self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000) -> GaussianPipeline:
+        return GaussianPipeline(self, datamanager, seed, max_steps)
 
 
 class GaussianPipeline(Pipeline):
     """3D Gaussians + rasterizer + photometric loss on one view per step."""
 
-    def __init__(self, config: PipelineConfig, datamanager: DataManager, seed: int = 0) -> None:
+    def __init__(
+        self, config: PipelineConfig, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000
+    ) -> None:
         super().__init__()
         self.config = config
         self.datamanager = datamanager
@@ -62,6 +67,7 @@ class GaussianPipeline(Pipeline):
         self.model = config.model.setup(
             points=scene.points, colors=scene.point_colors, scene_extent=self.scene_extent
         ).to(device)
+        self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.rasterizer = config.rasterizer.setup()
         self.loss_fn = config.loss.setup()
         self.register_buffer(
@@ -87,6 +93,12 @@ class GaussianPipeline(Pipeline):
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         return self.model.param_groups()
+
+    def after_backward(self, step: int) -> None:
+        self.densifier.collect(self._last)
+
+    def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+        self.last_refine = self.densifier.step(step, self.model, optimizers)
 
     # ---------------------------------------------------------------------------- rendering
     def _rasterize(self, camera: Cameras, step: int | None, background: Tensor):

@@ -83,7 +83,7 @@ class Trainer:
         if not scene.train_indices:
             raise ConfigError("the dataset has no training views", where=str(scene.root))
         self.datamanager = DataManager(scene, self.device, seed=cfg.seed)
-        self.pipeline: Pipeline = cfg.pipeline.setup(self.datamanager, seed=cfg.seed)
+        self.pipeline: Pipeline = cfg.pipeline.setup(self.datamanager, seed=cfg.seed, max_steps=cfg.max_steps)
         self.optimizers = Optimizers(self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps)
         self.run_dir = make_run_dir(cfg, scene.name)
         save_config(cfg, self.run_dir / "config.yml")

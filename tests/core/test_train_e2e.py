@@ -129,3 +129,31 @@ def test_truncated_checkpoint_is_a_clear_error(tiny_scene, tmp_path):
     bad.write_bytes(data[: len(data) // 2])
     with pytest.raises(UserError, match="corrupt, truncated"):
         load_checkpoint(bad)
+
+
+def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path):
+    from components.data.images import read_image
+    from tridehaze_plugin.cli.render import main as render_main
+
+    result = Trainer(_cfg(tiny_scene, tmp_path, "--max-steps", "5")).train()
+    out = tmp_path / "renders"
+    render_main(
+        [
+            "--load-config",
+            str(result.run_dir / "config.yml"),
+            "--split",
+            "train",
+            "--outputs",
+            "clean,depth",
+            "--output-dir",
+            str(out),
+            "--raw",
+        ]
+    )
+    clean = sorted(p.name for p in (out / "clean").glob("*.png"))
+    assert clean == [f"v{i:02d}.png" for i in range(1, 8)]  # every view but the held-out v00 and v08
+    assert read_image(out / "clean" / "v01.png").shape == (H, W, 3)
+    depth = np.load(out / "depth" / "v01.npy")
+    assert depth.shape == (H, W) and np.isfinite(depth).all() and depth.max() > 0
+    with pytest.raises(UserError, match="this method renders: clean, hazy, depth, alpha"):
+        render_main(["--load-config", str(result.run_dir / "config.yml"), "--outputs", "sky"])
