@@ -96,6 +96,7 @@ def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path):
     assert rows[-1]["loss"] < 0.8 * rows[0]["loss"], (rows[0]["loss"], rows[-1]["loss"])
     metrics = json.loads((run / "eval" / "metrics.json").read_text())
     assert metrics["split_views"] == 2 and np.isfinite(metrics["reconstruction_psnr"])
+    assert 0 < metrics["reconstruction_ssim"] <= 1
     # checkpoints: step 50 and the final one, atomic (no temporaries left)
     ckpts = sorted(p.name for p in (run / "checkpoints").iterdir())
     assert ckpts == ["step-0000050.ckpt", "step-0000060.ckpt"]
