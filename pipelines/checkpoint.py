@@ -11,6 +11,7 @@ from typing import Any
 
 import torch
 
+from components.data.images import default_file_mode
 from tridehaze_plugin.errors import UserError
 
 CHECKPOINT_GLOB = "step-*.ckpt"
@@ -25,6 +26,7 @@ def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".ckpt", dir=path.parent)
     try:
+        os.fchmod(fd, default_file_mode())
         with os.fdopen(fd, "wb") as fh:
             torch.save(payload, fh)
             fh.flush()

@@ -7,10 +7,9 @@ config file can never construct arbitrary objects.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
+from components.data.images import write_bytes_atomic
 from pipelines.config import TrainerConfig
 from tridehaze_plugin import __version__
 from tridehaze_plugin.config import dump_yaml, merge_dict, read_yaml_mapping, validate
@@ -25,15 +24,7 @@ def config_text(cfg: TrainerConfig) -> str:
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def save_config(cfg: TrainerConfig, path: Path) -> None:

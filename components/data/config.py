@@ -15,7 +15,8 @@ class DataConfig:
 
     data: Path | None = None
     """Dataset folder: nerfstudio ``transforms.json``, Blender-style ``transforms_train.json`` +
-    ``transforms_test.json``, or COLMAP (``images/`` + ``sparse/0/``). The format is detected."""
+    ``transforms_test.json``, or COLMAP (``images/`` + ``sparse/0/``). The format is detected.
+    ``td-train`` without it trains on the built-in hazy demo scene (generated once into the cache)."""
     parser: Annotated[str, RegistryChoice("dataparser", allow=("auto",))] = "auto"
     """Data parser to use; ``auto`` picks one from what the folder holds."""
     downscale: int = 1

@@ -212,12 +212,20 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
 # writing
 
 
+def default_file_mode() -> int:
+    """Permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write via a temporary file in the same folder + ``os.replace``: readers never see half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, default_file_mode())  # mkstemp makes 0600 files; others expect the umask's
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)

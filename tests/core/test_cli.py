@@ -12,8 +12,8 @@ from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError
 
 
-def run_cli(*args: str, cwd=None) -> subprocess.CompletedProcess:
-    env = dict(os.environ)
+def run_cli(*args: str, cwd=None, env_extra: dict | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, **(env_extra or {}))
     env.pop("TRIDEHAZE_PLUGINS", None)
     return subprocess.run(
         [sys.executable, "-m", "tridehaze_plugin.cli.train", *args],
@@ -55,8 +55,7 @@ def test_method_help_shows_field_docs():
     assert "Number of optimisation steps" in res.stdout  # docstrings become help text
 
 
-def test_missing_data_is_one_line_exit_2(tmp_path):
-    assert_user_error(run_cli("vanilla-gs", "--output-dir", str(tmp_path)), "--data")
+def test_missing_data_folder_is_one_line_exit_2(tmp_path):
     assert_user_error(
         run_cli("vanilla-gs", "--data", str(tmp_path / "absent"), "--output-dir", str(tmp_path)), "absent"
     )
@@ -113,6 +112,28 @@ def test_bad_dataset_through_the_cli_is_one_line(tmp_path):
     write_colmap(fisheye, n=2, model="FOV", params=[30.0, 30.0, 20.0, 15.0, 0.01])
     out = tmp_path / "out"
     for root, needle in ((corrupt, "frame_001.png"), (fisheye, "FOV")):
-        res = run_cli("vanilla-gs", "--data", str(root), "--output-dir", str(out), "--cache-dir", str(tmp_path / "c"))
+        res = run_cli(
+            "vanilla-gs", "--data", str(root), "--output-dir", str(out), "--cache-dir", str(tmp_path / "c")
+        )
         assert_user_error(res, needle)
     assert not out.exists()
+
+
+def test_no_data_trains_on_the_builtin_demo_scene(tmp_path):
+    cache = tmp_path / "cache"
+    res = run_cli(
+        "vanilla-gs",
+        "--max-steps",
+        "3",
+        "--output-dir",
+        str(tmp_path / "out"),
+        "--timestamp",
+        "t",
+        env_extra={"TRIDEHAZE_CACHE": str(cache)},
+    )
+    assert res.returncode == 0, res.stderr
+    assert "built-in demo scene" in res.stdout
+    run = next((tmp_path / "out").glob("*/vanilla-gs/t"))
+    metrics = (run / "eval" / "metrics.json").read_text()
+    assert "restoration_psnr" in metrics  # the demo scene has clean references
+    assert any(cache.rglob("transforms.json"))

@@ -40,8 +40,12 @@ def _fake_output(grad_px: torch.Tensor, w=100, h=80) -> RasterizeOutput:
     means2d.grad = grad_px[None].clone()
     z = torch.zeros(1, h, w, 1)
     return RasterizeOutput(
-        rgb=torch.zeros(1, h, w, 3), depth=z, alpha=z, means2d=means2d,
-        radii=torch.ones(1, n, dtype=torch.int32), visible=torch.ones(1, n, dtype=torch.bool),
+        rgb=torch.zeros(1, h, w, 3),
+        depth=z,
+        alpha=z,
+        means2d=means2d,
+        radii=torch.ones(1, n, dtype=torch.int32),
+        visible=torch.ones(1, n, dtype=torch.bool),
     )
 
 

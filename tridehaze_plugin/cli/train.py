@@ -10,6 +10,7 @@ import sys
 
 import tyro
 
+from components.synth import demo_scene_path
 from pipelines.config import TrainerConfig
 from pipelines.run_config import load_config
 from pipelines.trainer import Trainer
@@ -47,6 +48,9 @@ def parse_args(argv: list[str]) -> TrainerConfig:
 
 def main(argv: list[str] | None = None) -> None:
     cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    if cfg.dataset.data is None:
+        cfg.dataset.data = demo_scene_path(cfg.dataset.cache_dir)
+        print(f"no --data given: training on the built-in demo scene ({cfg.dataset.data})")
     Trainer(cfg).train()
 
 

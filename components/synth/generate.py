@@ -1,0 +1,248 @@
+"""``td-synth scene``: a procedural scene rendered with exact haze into a dataset the trainer reads.
+
+Output (nerfstudio layout, paths relative to the folder)::
+
+    transforms.json            OpenGL c2w, fl_x fl_y cx cy w h, explicit train/test split
+    images/NNNN.png            hazy views (what a method trains on)
+    clean/NNNN.png             haze-free views (``clean_file_path``, evaluation only)
+    gt_depth/NNNN.npy          true camera z-depth in metres (``gt_depth_file_path``; sky: far bound)
+    gt_transmittance/NNNN.npy  true T in (0, 1] (``gt_transmittance_file_path``)
+    gt_scattering/NNNN.npy     true S [H, W, 3] (``gt_scattering_file_path``); hazy = clean * T + S
+    points3d.ply               sparse seed cloud (noisy visible surface points with clean colours)
+    synth_meta.json            settings, medium parameters, timings, mean transmittance
+
+The ``gt_*`` keys land in ``SceneData.extra_paths``, never in ``depth_paths``: true depth would be
+a prior no real capture has.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from components.data.ply import write_ply_points
+from components.synth.layouts import LAYOUTS, Layout, make_layout
+from components.synth.march import DEFAULT_SAMPLES
+from components.synth.medium import PRESETS, Medium, make_medium
+from components.synth.render import CleanView, apply_medium, render_clean
+from components.synth.trajectories import Intrinsics, orbit_poses, walk_poses
+from components.synth.writer import frame_entry, staged_output, write_json, write_map, write_rgb
+from tridehaze_plugin.errors import ConfigError
+
+LayoutName = Literal["street", "courtyard", "room", "field"]
+HazeName = Literal["none", "homogeneous", "height", "patchy", "dense"]
+
+
+@dataclass
+class SceneConfig:
+    """A procedural hazy scene with exact ground truth."""
+
+    output_dir: Path
+    """Dataset folder to write (must be new or empty unless --overwrite)."""
+    layout: LayoutName = "courtyard"
+    """Scene layout: a street (forward walk), a courtyard, a room (indoor), an open field."""
+    haze: HazeName = "patchy"
+    """Medium preset: none, homogeneous, height (ground fog), patchy (heterogeneous blobs), dense."""
+    seed: int = 0
+    """Random seed for the layout and the medium (same seed, byte-identical images and maps)."""
+    num_views: int = 32
+    """Number of views."""
+    width: int = 160
+    """Image width in pixels."""
+    height: int = 120
+    """Image height in pixels."""
+    fov_deg: float = 60.0
+    """Horizontal field of view in degrees."""
+    trajectory: Literal["auto", "walk", "orbit"] = "auto"
+    """Camera path: the layout's default (auto), a forward-facing walk, or an orbit."""
+    samples: int = DEFAULT_SAMPLES
+    """Ray-marching samples per pixel between the camera and the surface (or far bound)."""
+    supersample: int = 2
+    """Sub-pixel rays per axis for the clean colour (anti-aliasing of the fine textures)."""
+    beta_scale: float = 1.0
+    """Multiplies the preset's extinction (2 = twice as thick)."""
+    num_points: int = 4000
+    """Seed points sampled from the train views' visible surfaces."""
+    point_noise: float = 0.003
+    """Seed point position noise, as a fraction of the point's distance (SfM-like jitter)."""
+    point_colors: Literal["clean", "hazy"] = "hazy"
+    """Seed point colours: the clean surface colour, or the hazy pixel's (what SfM on hazy photos gives)."""
+    test_every: int = 8
+    """Views 0, N, 2N, ... form the test split (0: no test views)."""
+    overwrite: bool = False
+    """Replace a non-empty output folder (the old one is kept until the new one is complete)."""
+    threads: int = 1
+    """Torch CPU threads while generating (1 is fastest on small images and shared machines; 0: torch default)."""
+
+    def check(self) -> None:
+        if self.layout not in LAYOUTS:
+            raise ConfigError(f"--layout must be one of {', '.join(LAYOUTS)}, got {self.layout!r}")
+        if self.haze not in PRESETS:
+            raise ConfigError(f"--haze must be one of {', '.join(PRESETS)}, got {self.haze!r}")
+        for name in ("num_views", "width", "height", "samples", "supersample"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if not 1.0 <= self.fov_deg <= 170.0:
+            raise ConfigError(f"--fov-deg must be in [1, 170], got {self.fov_deg}")
+        if self.beta_scale < 0:
+            raise ConfigError(f"--beta-scale must be >= 0, got {self.beta_scale}")
+        if self.num_points < 0 or self.point_noise < 0:
+            raise ConfigError("--num-points and --point-noise must be >= 0")
+        if self.point_colors not in ("clean", "hazy"):
+            raise ConfigError(f"--point-colors must be clean or hazy, got {self.point_colors!r}")
+        if self.test_every < 0 or self.test_every == 1:
+            raise ConfigError(f"--test-every must be 0 or >= 2, got {self.test_every}")
+        if self.threads < 0:
+            raise ConfigError(f"--threads must be >= 0, got {self.threads}")
+
+
+@contextlib.contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run with ``n`` torch threads (0: leave as is), restoring the previous setting afterwards."""
+    before = torch.get_num_threads()
+    if n > 0:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def camera_poses(layout: Layout, trajectory: str, n: int) -> tuple[str, list[np.ndarray]]:
+    kind = layout.default_trajectory if trajectory == "auto" else trajectory
+    return kind, (walk_poses(layout.walk, n) if kind == "walk" else orbit_poses(layout.orbit, n))
+
+
+def split(n: int, test_every: int) -> tuple[list[int], list[int]]:
+    test = [i for i in range(n) if test_every and i % test_every == 0 and n > 1]
+    return [i for i in range(n) if i not in test], test
+
+
+def sample_points(
+    view: CleanView, colors: torch.Tensor, k: int, noise: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` visible surface points of a view with their pixel's ``colors`` [H, W, 3], jittered along
+    all axes by ``noise * distance``."""
+    idx = np.flatnonzero(view.hit.numpy())
+    if len(idx) == 0 or k == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    pick = np.sort(rng.choice(idx, size=min(k, len(idx)), replace=False))
+    t = view.t_end.numpy()[pick].astype(np.float64)
+    xyz = view.origins.numpy()[pick] + t[:, None] * view.dirs.numpy()[pick]  # [k, 3]
+    xyz = xyz + rng.normal(size=xyz.shape) * (noise * t)[:, None]
+    rgb = colors.reshape(-1, 3).numpy()[pick]
+    return xyz, np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def generate_scene(cfg: SceneConfig) -> dict[str, Any]:
+    """Render the scene of ``cfg`` into ``cfg.output_dir`` (staged, then renamed); returns the metadata."""
+    cfg.check()
+    with torch_threads(cfg.threads), staged_output(cfg.output_dir, cfg.overwrite) as tmp:
+        meta = _render_all(cfg, tmp)
+    return meta
+
+
+def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
+    t_start = time.perf_counter()
+    layout = make_layout(cfg.layout, cfg.seed)
+    medium = make_medium(cfg.haze, layout.medium_context(), cfg.seed, cfg.beta_scale)
+    kind, poses = camera_poses(layout, cfg.trajectory, cfg.num_views)
+    K = Intrinsics.from_fov(cfg.width, cfg.height, cfg.fov_deg)
+    train, test = split(len(poses), cfg.test_every)
+    rng = np.random.default_rng([cfg.seed, 4242])
+    per_view_points = -(-cfg.num_points // max(len(train), 1))
+    t_clean = t_haze = t_write = 0.0
+    frames, pts, cols, mean_T = [], [], [], []
+    T_hist = np.zeros(1001, dtype=np.int64)  # histogram of T for the median without keeping all maps
+    for i, c2w in enumerate(poses):
+        t0 = time.perf_counter()
+        view = render_clean(layout, c2w, K, cfg.supersample)
+        t1 = time.perf_counter()
+        hz = apply_medium(view, medium, cfg.samples)
+        t2 = time.perf_counter()
+        name = f"{i:04d}"
+        files = {
+            "file_path": f"images/{name}.png",
+            "clean_file_path": f"clean/{name}.png",
+            "gt_depth_file_path": f"gt_depth/{name}.npy",
+            "gt_transmittance_file_path": f"gt_transmittance/{name}.npy",
+            "gt_scattering_file_path": f"gt_scattering/{name}.npy",
+        }
+        write_rgb(root / files["file_path"], hz.hazy.numpy())
+        write_rgb(root / files["clean_file_path"], view.clean.numpy())
+        write_map(root / files["gt_depth_file_path"], view.depth_z.numpy())
+        write_map(root / files["gt_transmittance_file_path"], hz.transmittance.numpy())
+        write_map(root / files["gt_scattering_file_path"], hz.scattering.numpy())
+        frames.append(frame_entry(c2w, files))
+        T = hz.transmittance.numpy()
+        mean_T.append(float(T.mean()))
+        T_hist += np.bincount(np.clip(np.rint(T.ravel() * 1000), 0, 1000).astype(np.int64), minlength=1001)
+        if i in train and cfg.num_points:
+            colors = view.clean if cfg.point_colors == "clean" else hz.hazy
+            p, c = sample_points(view, colors, per_view_points, cfg.point_noise, rng)
+            pts.append(p)
+            cols.append(c)
+        t_clean += t1 - t0
+        t_haze += t2 - t1
+        t_write += time.perf_counter() - t2
+    xyz = np.concatenate(pts)[: cfg.num_points] if pts else np.zeros((0, 3))
+    rgb = np.concatenate(cols)[: cfg.num_points] if cols else np.zeros((0, 3), np.uint8)
+    write_ply_points(root / "points3d.ply", xyz, rgb)
+    transforms = {
+        "camera_model": "PINHOLE",
+        **{"fl_x": K.fx, "fl_y": K.fy, "cx": K.cx, "cy": K.cy, "w": K.width, "h": K.height},
+        "ply_file_path": "points3d.ply",
+        "train_filenames": [frames[i]["file_path"] for i in train],
+        "test_filenames": [frames[i]["file_path"] for i in test],
+        "frames": frames,
+    }
+    write_json(root / "transforms.json", transforms)
+    meta = _meta(cfg, layout, medium, kind, mean_T, T_hist, len(xyz))
+    meta["timings_s"] = {
+        "total": round(time.perf_counter() - t_start, 3),
+        "clean_render": round(t_clean, 3),
+        "haze_march": round(t_haze, 3),
+        "write": round(t_write, 3),
+        "per_view": round((t_clean + t_haze + t_write) / len(poses), 4),
+    }
+    write_json(root / "synth_meta.json", meta)
+    return meta
+
+
+def _meta(
+    cfg: SceneConfig,
+    layout: Layout,
+    medium: Medium,
+    kind: str,
+    mean_T: list[float],
+    T_hist: np.ndarray,
+    n_pts: int,
+) -> dict[str, Any]:
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    settings.pop("output_dir")
+    settings.pop("overwrite")
+    median = float(np.searchsorted(np.cumsum(T_hist), T_hist.sum() / 2.0) / 1000.0)
+    return {
+        "generator": "td-synth scene",
+        "settings": settings,
+        "layout": layout.name,
+        "trajectory": kind,
+        "world": "metres, z up; poses in transforms.json are OpenGL camera-to-world (nerfstudio)",
+        "far_bound_m": layout.far,
+        "sun_direction": layout.sun,
+        "medium": medium.describe(),
+        "image_formation": "hazy = clean * T + S per pixel (8-bit PNG rounding aside); "
+        "T = exp(-sum beta_k Delta), S = sum T_k (1 - exp(-beta_k Delta)) L_k, midpoint samples",
+        "gt_depth": "camera z-depth in metres along the pixel-centre ray; sky pixels hold the far bound's z",
+        "mean_transmittance": float(np.mean(mean_T)),
+        "median_transmittance": median,
+        "per_view_mean_transmittance": [round(v, 5) for v in mean_T],
+        "num_seed_points": n_pts,
+    }

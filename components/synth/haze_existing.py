@@ -1,0 +1,360 @@
+"""``td-synth haze``: add haze to an existing clean dataset (the Mip-NeRF 360 "foggy" protocol).
+
+    I = J * T + A * (1 - T),   T = exp(-beta * tau),   tau = integral of f(x) along the pixel's ray
+
+``f = 1`` gives the protocol's homogeneous fog, ``T = exp(-beta * d)`` with ``d`` the distance
+along the ray to the pixel's surface point. The heterogeneous option multiplies beta by a smooth
+3D field ``f(x) = 1 + h * mean_i sin(w_i . x + phi_i)`` (three random plane waves, ``0 <= h < 1``),
+integrated along the ray from the camera to the surface point in closed form, so T is exact.
+
+Depth ``d`` comes from the dataset's depth maps (camera z-depth in dataset units) or is rendered
+from a trained run (``--depth-from-run RUN/config.yml``), converted back to dataset units. Because
+T decreases monotonically with tau, a target median transmittance fixes beta in closed form:
+``beta = -ln(T_target) / median(tau)`` (no iterative search needed).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from components.data.cameras import Cameras
+from components.data.config import DataConfig
+from components.data.images import read_depth, read_image
+from components.data.loader import check_root, load_scene
+from components.data.ply import write_ply_points
+from components.data.scene import SceneData
+from components.synth.generate import torch_threads
+from components.synth.writer import (
+    check_output_dir,
+    frame_entry,
+    staged_output,
+    write_json,
+    write_map,
+    write_rgb,
+)
+from tridehaze_plugin.errors import ConfigError, UserError
+
+DEFAULT_MEDIAN_T = 0.4
+"""Target median transmittance when neither --beta nor --median-transmittance is given."""
+
+
+@dataclass
+class HazeConfig:
+    """Synthesise haze on a clean dataset, keeping the clean images as paired ground truth."""
+
+    data: Path
+    """Clean dataset folder (nerfstudio, Blender or COLMAP; detected like td-train --data)."""
+    output_dir: Path
+    """Where the hazy nerfstudio dataset is written (must be new or empty unless --overwrite)."""
+    beta: float | None = None
+    """Extinction coefficient in 1 / dataset unit. Give this or --median-transmittance."""
+    median_transmittance: float | None = None
+    """Choose beta so the median transmittance over all pixels of all views is this (in (0, 1));
+    default 0.4 when --beta is not given."""
+    airlight: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    """Airlight A (RGB in [0, 1])."""
+    heterogeneous: float = 0.0
+    """Strength h in [0, 1) of the smooth 3D field multiplying beta (0: homogeneous fog)."""
+    feature_size: float = 0.5
+    """Wavelength of the heterogeneous field, as a fraction of the median scene depth."""
+    depth_from_run: Path | None = None
+    """A trained run's config.yml (e.g. vanilla-gs on this dataset) to render depth from; needed when
+    the dataset has no depth maps, and preferred over them when given."""
+    min_alpha: float = 0.5
+    """Rendered depth counts only where the run's accumulated opacity reaches this; elsewhere the view's
+    largest valid depth is used (background)."""
+    downscale: int = 1
+    """Integer image downscale of the source dataset (as td-train --downscale)."""
+    parser: str = "auto"
+    """Dataset parser (auto, nerfstudio, blender, colmap)."""
+    seed: int = 0
+    """Seed of the heterogeneous field."""
+    overwrite: bool = False
+    """Replace a non-empty output folder (the old one stays until the new one is complete)."""
+    cache_dir: Path | None = None
+    """Cache for undistorted / downscaled copies (default: $TRIDEHAZE_CACHE or ~/.cache/tridehaze)."""
+    threads: int = 1
+    """Torch CPU threads (0: torch default)."""
+
+    def check(self) -> None:
+        if self.beta is not None and self.median_transmittance is not None:
+            raise ConfigError("give either --beta or --median-transmittance, not both")
+        if self.beta is not None and not (math.isfinite(self.beta) and self.beta >= 0):
+            raise ConfigError(f"--beta must be a finite number >= 0, got {self.beta}")
+        mt = self.median_transmittance
+        if mt is not None and not 0.0 < mt < 1.0:
+            raise ConfigError(f"--median-transmittance must be in (0, 1), got {mt}")
+        if not all(0.0 <= a <= 1.0 for a in self.airlight):
+            raise ConfigError(f"--airlight must be three values in [0, 1], got {self.airlight}")
+        if not 0.0 <= self.heterogeneous < 1.0:
+            raise ConfigError(f"--heterogeneous must be in [0, 1), got {self.heterogeneous}")
+        if self.feature_size <= 0:
+            raise ConfigError(f"--feature-size must be > 0, got {self.feature_size}")
+        if not 0.0 <= self.min_alpha <= 1.0:
+            raise ConfigError(f"--min-alpha must be in [0, 1], got {self.min_alpha}")
+        if self.threads < 0:
+            raise ConfigError(f"--threads must be >= 0, got {self.threads}")
+
+
+# --------------------------------------------------------------------------------------
+# rays and the heterogeneous field
+
+
+def view_rays(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Origin [3], unit world directions [H, W, 3] and distance per unit z-depth [H, W] of view ``i``."""
+    W, H = int(cams.width[i]), int(cams.height[i])
+    xs, ys = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    cam = np.stack(
+        [
+            (xs - float(cams.cx[i])) / float(cams.fx[i]),
+            (ys - float(cams.cy[i])) / float(cams.fy[i]),
+            np.ones_like(xs),
+        ],
+        -1,
+    )  # [H, W, 3]
+    norm = np.linalg.norm(cam, axis=-1)
+    c2w = cams.camtoworlds[i].double().numpy()
+    d = (cam / norm[..., None]) @ c2w[:3, :3].T
+    return c2w[:3, 3], d, norm
+
+
+@dataclass(frozen=True)
+class WaveField:
+    """``f(x) = 1 + h * mean_i sin(w_i . x + phi_i)``: smooth, positive, mean 1."""
+
+    h: float
+    waves: np.ndarray  # [3, 3] wave vectors (rad / unit)
+    phases: np.ndarray  # [3]
+
+    @staticmethod
+    def make(h: float, wavelength: float, seed: int) -> WaveField:
+        rng = np.random.default_rng([seed, 31337])
+        dirs = rng.normal(size=(3, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        return WaveField(h, dirs * (2 * np.pi / wavelength), rng.uniform(0, 2 * np.pi, 3))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:  # [..., 3] -> [...]
+        return 1.0 + self.h * np.mean(np.sin(x @ self.waves.T + self.phases), axis=-1)
+
+    def optical_depth(self, o: np.ndarray, d: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """Exact integral of f from ``o`` along unit ``d`` [..., 3] over ``dist`` [...]:
+        ``dist * (1 + h * mean_i sin(a_i + b_i dist / 2) sinc(b_i dist / 2))``."""
+        if self.h == 0.0:
+            return dist
+        a = o @ self.waves.T + self.phases  # [3]
+        b = d @ self.waves.T  # [..., 3]
+        half = b * dist[..., None] / 2
+        mean = np.mean(np.sin(a + half) * np.sinc(half / np.pi), axis=-1)  # np.sinc(x) = sin(pi x) / (pi x)
+        return dist * (1.0 + self.h * mean)
+
+
+# --------------------------------------------------------------------------------------
+# depth
+
+
+def _fill_invalid(depth: np.ndarray, valid: np.ndarray, where: str) -> np.ndarray:
+    if not valid.any():
+        raise UserError(
+            "a view has no valid depth at all", where=where, fix="check the depth maps or the run"
+        )
+    out = depth.copy()
+    out[~valid] = depth[valid].max()  # holes are background: push them to the view's far end
+    return out
+
+
+def dataset_depths(scene: SceneData) -> list[np.ndarray]:
+    """The dataset's depth maps [H, W] (dataset units, z-depth) at each view's image size."""
+    out = []
+    for i, p in enumerate(scene.depth_paths):
+        assert p is not None
+        d = read_depth(p)
+        H, W = int(scene.cameras.height[i]), int(scene.cameras.width[i])
+        if d.shape != (H, W):
+            d = cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST)
+        out.append(_fill_invalid(d, np.isfinite(d) & (d > 0), str(p)))
+    return out
+
+
+def run_depths(scene: SceneData, config_path: Path, min_alpha: float) -> list[np.ndarray]:
+    """Depth [H, W] (dataset units, z-depth) rendered from a trained run for every view of ``scene``."""
+    from pipelines.run_loader import load_run  # heavy import, only when a run is used
+
+    config_path = Path(config_path)
+    if not config_path.is_file():
+        raise UserError("run config not found", where=str(config_path), fix="pass a run's config.yml")
+    run = load_run(config_path)
+    run_root = run.datamanager.scene.root.resolve()
+    if run_root != scene.root.resolve():
+        raise UserError(
+            f"the run was trained on {run_root}, not on this dataset",
+            where=str(config_path),
+            fix="pass a run trained on --data",
+        )
+    tr = run.datamanager.scene.transform
+    c2w_n = tr.apply_c2w(scene.cameras.camtoworlds.double()).float()  # into the run's normalised world
+    out = []
+    for i in range(len(scene)):
+        cam = Cameras(
+            c2w_n[i : i + 1],
+            *(getattr(scene.cameras, k)[i : i + 1] for k in ("fx", "fy", "cx", "cy", "width", "height")),
+        )
+        with torch.no_grad():
+            res = run.pipeline.render(cam)
+        depth = res["depth"][..., 0].double().numpy() / tr.scale  # normalised -> dataset units
+        alpha = res["alpha"][..., 0].numpy() if "alpha" in res else np.ones_like(depth)
+        valid = (alpha >= min_alpha) & np.isfinite(depth) & (depth > 0)
+        out.append(_fill_invalid(depth, valid, f"{config_path} view {scene.names()[i]}").astype(np.float32))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# main
+
+
+def _unique_stems(names: list[str]) -> list[str]:
+    stems = [Path(n).stem for n in names]
+    if len(set(stems)) == len(stems):
+        return stems
+    return [f"{i:04d}_{s}" for i, s in enumerate(stems)]
+
+
+def haze_dataset(cfg: HazeConfig) -> dict[str, Any]:
+    """Write the hazy copy of ``cfg.data`` into ``cfg.output_dir``; returns the metadata written."""
+    cfg.check()
+    root = check_root(cfg.data)
+    out = check_output_dir(cfg.output_dir, cfg.overwrite)
+    if out == root or root in out.parents:
+        raise UserError("--output-dir must be outside the dataset folder", where=str(out))
+    t0 = time.perf_counter()
+    with torch_threads(cfg.threads):
+        data_cfg = DataConfig(
+            data=root,
+            parser=cfg.parser,
+            downscale=cfg.downscale,
+            center_poses=False,  # keep the dataset's own units: beta is per dataset unit
+            scale_poses=False,
+            cache_dir=cfg.cache_dir,
+        )
+        scene = load_scene(data_cfg)
+        if cfg.depth_from_run is not None:
+            depths, source = run_depths(scene, cfg.depth_from_run, cfg.min_alpha), f"run {cfg.depth_from_run}"
+        elif all(p is not None for p in scene.depth_paths):
+            depths, source = dataset_depths(scene), "dataset depth maps"
+        else:
+            missing = sum(p is None for p in scene.depth_paths)
+            raise UserError(
+                f"{missing} of {len(scene)} views have no depth map",
+                where=str(root),
+                fix="pass --depth-from-run RUN/config.yml (e.g. a vanilla-gs run trained on this dataset)",
+            )
+        t_depth = time.perf_counter() - t0
+        rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
+        dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
+        median_depth = float(np.median(np.concatenate([d.ravel() for d in dists])))
+        field = WaveField.make(cfg.heterogeneous, cfg.feature_size * median_depth, cfg.seed)
+        taus = [field.optical_depth(o, d, dist) for (o, d, _), dist in zip(rays, dists, strict=True)]
+        beta = _solve_beta(cfg, taus)
+        with staged_output(out, cfg.overwrite) as tmp:
+            meta = _write(cfg, scene, tmp, depths, taus, beta)
+            meta.update(
+                source=str(root),
+                depth_source=source,
+                median_distance=median_depth,
+                heterogeneous_field={
+                    "h": cfg.heterogeneous,
+                    "wavelength": cfg.feature_size * median_depth,
+                    "waves": field.waves.tolist(),
+                    "phases": field.phases.tolist(),
+                },
+                timings_s={"depth": round(t_depth, 3), "total": round(time.perf_counter() - t0, 3)},
+            )
+            write_json(tmp / "synth_meta.json", meta)
+    return meta
+
+
+def _target(cfg: HazeConfig) -> float | None:
+    """The median transmittance to hit (None when beta is given)."""
+    if cfg.beta is not None:
+        return None
+    return cfg.median_transmittance if cfg.median_transmittance is not None else DEFAULT_MEDIAN_T
+
+
+def _solve_beta(cfg: HazeConfig, taus: list[np.ndarray]) -> float:
+    target = _target(cfg)
+    if target is None:
+        return float(cfg.beta)  # type: ignore[arg-type]
+    med = float(np.median(np.concatenate([t.ravel() for t in taus])))
+    if med <= 0:
+        raise UserError("the depths are all zero; cannot choose beta from a transmittance target")
+    return -math.log(target) / med
+
+
+def _write(
+    cfg: HazeConfig,
+    scene: SceneData,
+    root: Path,
+    depths: list[np.ndarray],
+    taus: list[np.ndarray],
+    beta: float,
+) -> dict[str, Any]:
+    A = np.asarray(cfg.airlight, np.float64)
+    stems = _unique_stems(scene.names())
+    frames, all_T, mean_T = [], [], []
+    for i, stem in enumerate(stems):
+        J = read_image(scene.image_paths[i]).astype(np.float64) / 255.0  # [H, W, 3]
+        T = np.exp(-beta * taus[i])  # [H, W]
+        hazy = J * T[..., None] + A * (1.0 - T[..., None])
+        files = {
+            "file_path": f"images/{stem}.png",
+            "clean_file_path": f"clean/{stem}.png",
+            "gt_depth_file_path": f"gt_depth/{stem}.npy",
+            "gt_transmittance_file_path": f"gt_transmittance/{stem}.npy",
+        }
+        write_rgb(root / files["file_path"], hazy)
+        write_rgb(root / files["clean_file_path"], read_image(scene.image_paths[i]))
+        write_map(root / files["gt_depth_file_path"], depths[i])
+        write_map(root / files["gt_transmittance_file_path"], T)
+        cams = scene.cameras
+        intr = {
+            "fl_x": float(cams.fx[i]),
+            "fl_y": float(cams.fy[i]),
+            "cx": float(cams.cx[i]),
+            "cy": float(cams.cy[i]),
+            "w": int(cams.width[i]),
+            "h": int(cams.height[i]),
+        }
+        frames.append(frame_entry(cams.camtoworlds[i].double().numpy(), files, intr))
+        all_T.append(T.astype(np.float32).ravel())
+        mean_T.append(float(T.mean()))
+    transforms: dict[str, Any] = {"camera_model": "PINHOLE", "frames": frames}
+    if scene.points is not None and len(scene.points):
+        rgb = None
+        if scene.point_colors is not None:
+            rgb = np.clip(scene.point_colors.numpy() * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        write_ply_points(root / "points3d.ply", scene.points.double().numpy(), rgb)
+        transforms["ply_file_path"] = "points3d.ply"
+    transforms["train_filenames"] = [frames[i]["file_path"] for i in scene.train_indices]
+    transforms["test_filenames"] = [frames[i]["file_path"] for i in scene.test_indices]
+    write_json(root / "transforms.json", transforms)
+    T_all = np.concatenate(all_T)
+    return {
+        "generator": "td-synth haze",
+        "model": "I = J * T + A * (1 - T), T = exp(-beta * integral of f along the ray to the surface point)",
+        "beta": beta,
+        "beta_units": "1 / dataset unit",
+        "airlight": list(cfg.airlight),
+        "target_median_transmittance": _target(cfg),
+        "median_transmittance": float(np.median(T_all)),
+        "mean_transmittance": float(T_all.mean()),
+        "per_view_mean_transmittance": [round(v, 5) for v in mean_T],
+        "gt_depth": "camera z-depth in dataset units (the depth the haze was made with)",
+        "downscale": cfg.downscale,
+    }

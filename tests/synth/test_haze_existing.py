@@ -1,0 +1,148 @@
+"""td-synth haze on a tiny clean dataset with depth maps (and with depth rendered from a tiny run)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from components.data.config import DataConfig
+from components.data.images import read_image
+from components.data.loader import load_scene
+from components.synth.haze_existing import HazeConfig, WaveField, haze_dataset
+from tests.synth.conftest import make_tiny
+from tridehaze_plugin.errors import UserError
+
+
+@pytest.fixture(scope="module")
+def clean_dataset(tmp_path_factory) -> Path:
+    """A clear synthetic scene whose true depth is offered as the dataset's depth maps."""
+    root = make_tiny(tmp_path_factory.mktemp("haze") / "clean", haze="none", num_views=6, test_every=3)
+    meta = json.loads((root / "transforms.json").read_text())
+    for fr in meta["frames"]:
+        fr["depth_file_path"] = fr.pop("gt_depth_file_path")
+        for k in ("clean_file_path", "gt_transmittance_file_path", "gt_scattering_file_path"):
+            fr.pop(k)
+    (root / "transforms.json").write_text(json.dumps(meta))
+    return root
+
+
+def _cfg(data: Path, out: Path, **kw) -> HazeConfig:
+    return HazeConfig(data=data, output_dir=out, cache_dir=out.parent / "cache", **kw)
+
+
+def _frames(root: Path) -> list[dict]:
+    return json.loads((root / "transforms.json").read_text())["frames"]
+
+
+def _ray_distance(fr: dict, depth: np.ndarray) -> np.ndarray:
+    H, W = depth.shape
+    xs, ys = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    norm = np.sqrt(((xs - fr["cx"]) / fr["fl_x"]) ** 2 + ((ys - fr["cy"]) / fr["fl_y"]) ** 2 + 1)
+    return depth * norm
+
+
+def test_median_target_and_clean_pairs(clean_dataset, tmp_path):
+    out = tmp_path / "foggy"
+    meta = haze_dataset(_cfg(clean_dataset, out, median_transmittance=0.3, airlight=(0.9, 0.85, 0.8)))
+    T_all, beta, A = [], meta["beta"], np.array([0.9, 0.85, 0.8])
+    src = {fr["file_path"].split("/")[-1]: fr for fr in _frames(clean_dataset)}
+    for fr in _frames(out):
+        T = np.load(out / fr["gt_transmittance_file_path"]).astype(np.float64)
+        depth = np.load(out / fr["gt_depth_file_path"])
+        clean = read_image(out / fr["clean_file_path"])
+        # the clean copy is the source image, pixel for pixel
+        assert np.array_equal(clean, read_image(clean_dataset / src[Path(fr["file_path"]).name]["file_path"]))
+        # homogeneous fog along the ray: T = exp(-beta d), d the distance to the surface point
+        np.testing.assert_allclose(T, np.exp(-beta * _ray_distance(fr, depth)), rtol=1e-5, atol=1e-7)
+        hazy = read_image(out / fr["file_path"]).astype(np.float64) / 255
+        J = clean.astype(np.float64) / 255
+        assert np.abs(J * T[..., None] + A * (1 - T[..., None]) - hazy).max() <= 0.5 / 255 + 1e-6
+        T_all.append(T.ravel())
+    assert abs(float(np.median(np.concatenate(T_all))) - 0.3) < 0.01
+    assert abs(meta["median_transmittance"] - 0.3) < 0.01
+
+
+def test_output_loads_with_gt_as_extras(clean_dataset, tmp_path):
+    out = tmp_path / "foggy"
+    haze_dataset(_cfg(clean_dataset, out, beta=0.05, heterogeneous=0.6))
+    scene = load_scene(DataConfig(data=out, cache_dir=tmp_path / "cache"))
+    src = load_scene(DataConfig(data=clean_dataset, cache_dir=tmp_path / "cache"))
+    assert len(scene) == 6 and scene.test_indices == src.test_indices == [0, 3]
+    assert all(p is None for p in scene.depth_paths)  # the true depth is never a prior
+    assert set(scene.extra_paths) == {"gt_depth_file_path", "gt_transmittance_file_path"}
+    assert all(p is not None for p in scene.clean_paths)
+    assert scene.points is not None and len(scene.points) == len(src.points)
+    assert np.allclose(scene.cameras.camtoworlds.numpy(), src.cameras.camtoworlds.numpy(), atol=1e-5)
+
+
+def test_wave_field_optical_depth_is_the_exact_integral():
+    f = WaveField.make(0.7, wavelength=3.0, seed=2)
+    rng = np.random.default_rng(0)
+    o = rng.normal(size=3)
+    d = rng.normal(size=(50, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist = rng.uniform(0.1, 20, 50)
+    s = (np.arange(20000) + 0.5) / 20000  # fine midpoint rule
+    pts = o + (dist[:, None, None] * s[None, :, None]) * d[:, None, :]
+    numeric = f(pts).mean(axis=1) * dist
+    np.testing.assert_allclose(f.optical_depth(o, d, dist), numeric, rtol=1e-6)
+    assert (f(rng.normal(size=(1000, 3)) * 10) > 0).all()
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"beta": -0.1}, "--beta"),
+        ({"median_transmittance": 1.0}, "--median-transmittance"),
+        ({"median_transmittance": 0.0}, "--median-transmittance"),
+        ({"beta": 0.1, "median_transmittance": 0.5}, "either"),
+        ({"heterogeneous": 1.0}, "--heterogeneous"),
+    ],
+)
+def test_bad_options(clean_dataset, tmp_path, kw, match):
+    with pytest.raises(UserError, match=match):
+        haze_dataset(_cfg(clean_dataset, tmp_path / "o", **kw))
+    assert not (tmp_path / "o").exists()
+
+
+def test_dataset_without_depth_needs_a_run(tiny_dataset, tmp_path):
+    with pytest.raises(UserError, match="--depth-from-run"):
+        haze_dataset(_cfg(tiny_dataset, tmp_path / "o"))
+    assert not (tmp_path / "o").exists()
+
+
+def test_depth_from_a_run_is_in_dataset_units(clean_dataset, tmp_path):
+    """Depth rendered by a (tiny) trained run, converted from the run's normalised world back to metres."""
+    import torch
+
+    from pipelines.run_loader import load_run
+    from pipelines.trainer import Trainer
+    from tridehaze_plugin.cli.train import parse_args
+
+    args = (
+        f"vanilla-gs --data {clean_dataset} --output-dir {tmp_path / 'runs'} --max-steps 30 --timestamp run"
+    )
+    args += (
+        f" --pipeline.rasterizer.backend torch --no-eval-at-end --threads 1 --cache-dir {tmp_path / 'cache'}"
+    )
+    cfg = parse_args(args.split())
+    cfg = replace(cfg, steps_per_log=1000)
+    Trainer(cfg).train()
+    config = next((tmp_path / "runs").rglob("config.yml"))
+    out = tmp_path / "foggy"
+    meta = haze_dataset(_cfg(clean_dataset, out, depth_from_run=config, beta=0.02, min_alpha=0.0))
+    assert meta["depth_source"].startswith("run")
+    run = load_run(config)
+    scale = run.datamanager.scene.transform.scale
+    assert not math.isclose(scale, 1.0, rel_tol=0.05)  # the conversion matters here
+    with torch.no_grad():
+        res = run.pipeline.render(run.datamanager.camera(1))
+    expected = res["depth"][..., 0].numpy() / scale
+    got = np.load(out / _frames(out)[1]["gt_depth_file_path"])
+    ok = expected > 0
+    np.testing.assert_allclose(got[ok], expected[ok], rtol=1e-3)
