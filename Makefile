@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.tridehaze-installed
-DEMO_DATA ?= ../shared/data/real/statue
+BENCH_DATA ?= ../shared/data/real/statue
 
 .PHONY: demo test lint install bench clean-venv
 
@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/td-train vanilla-gs --data $(DEMO_DATA) --downscale 8 --max-steps 2000 --output-dir outputs
+	$(BIN)/td-train vanilla-gs --max-steps 1500 --output-dir outputs
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
@@ -33,4 +33,4 @@ clean-venv:
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e ".[bench]"
-	$(BIN)/python benchmarks/threads.py --data $(DEMO_DATA) --downscale 8
+	$(BIN)/python benchmarks/threads.py --data $(BENCH_DATA) --downscale 8
