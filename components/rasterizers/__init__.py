@@ -1,7 +1,15 @@
 """Gaussian rasterizers. Importing this package registers the built-in backends."""
 
-from components.rasterizers import torch_reference  # noqa: F401  (registers "torch")
+from components.rasterizers import cpu_rasterizer, torch_reference  # noqa: F401  (register "cpu", "torch")
 from components.rasterizers.base import RasterizeOutput, Rasterizer, RasterizerConfig, resolve_backend
+from components.rasterizers.cpu_rasterizer import CpuRasterizer
 from components.rasterizers.torch_reference import TorchRasterizer
 
-__all__ = ["RasterizeOutput", "Rasterizer", "RasterizerConfig", "TorchRasterizer", "resolve_backend"]
+__all__ = [
+    "CpuRasterizer",
+    "RasterizeOutput",
+    "Rasterizer",
+    "RasterizerConfig",
+    "TorchRasterizer",
+    "resolve_backend",
+]

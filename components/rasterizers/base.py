@@ -7,6 +7,7 @@ semantics, gsplat's *classic* 3DGS mode, so they can be swapped and compared (do
 from __future__ import annotations
 
 import abc
+import sys
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar
 
@@ -57,6 +58,8 @@ class Rasterizer(abc.ABC):
     """
 
     name: ClassVar[str] = ""
+    fallback: ClassVar[str | None] = None
+    """Backend to use instead when this one is asked for but unavailable (None: it is an error)."""
 
     def __init__(self, config: RasterizerConfig | None = None) -> None:
         self.config = config if config is not None else RasterizerConfig(backend=self.name or "auto")
@@ -65,6 +68,11 @@ class Rasterizer(abc.ABC):
     def available(cls) -> bool:
         """Whether this backend can run in the current process (compiled extension, device...)."""
         return True
+
+    @classmethod
+    def unavailable_reason(cls) -> str | None:
+        """Why :meth:`available` is False (one short phrase), or None when it is available."""
+        return None if cls.available() else "not available here"
 
     @abc.abstractmethod
     def rasterize(
@@ -128,10 +136,17 @@ def resolve_backend(name: str, registry: Registry | None = None) -> str:
     if name != "auto":
         cls = registry.get("rasterizer", name)
         if not cls.available():
+            reason = cls.unavailable_reason() or "not available here"
+            if cls.fallback and ("rasterizer", cls.fallback) in registry:
+                print(
+                    f"warning: {name} rasterizer unavailable ({reason}); using {cls.fallback}",
+                    file=sys.stderr,
+                )
+                return cls.fallback
             raise ConfigError(
-                f"rasterizer backend {name!r} is not available here",
-                where="--rasterizer.backend",
-                fix="use --rasterizer.backend auto (or torch, which always works)",
+                f"rasterizer backend {name!r} is not available here ({reason})",
+                where="--pipeline.rasterizer.backend",
+                fix="use auto (or torch, which always works)",
             )
         return name
     for cand in AUTO_ORDER:

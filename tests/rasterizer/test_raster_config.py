@@ -25,6 +25,7 @@ class _Fake(Rasterizer):
 
 class _FakeCpu(_Fake):
     name = "cpu"
+    fallback = "torch"
 
 
 class _FakeGsplat(_Fake):
@@ -44,7 +45,7 @@ def test_torch_backend_is_registered_and_built_with_the_config() -> None:
         RasterizerConfig(backend="no-such-backend").setup()
 
 
-def test_auto_prefers_gsplat_on_cuda_then_cpu_then_torch() -> None:
+def test_auto_prefers_gsplat_on_cuda_then_cpu_then_torch(capsys) -> None:
     reg = Registry()
     reg.register("rasterizer", "torch", TorchRasterizer)
     assert resolve_backend("auto", reg) == "torch"
@@ -57,8 +58,14 @@ def test_auto_prefers_gsplat_on_cuda_then_cpu_then_torch() -> None:
     _FakeGsplat.ok = False
     try:
         assert resolve_backend("auto", reg) == "torch"
+        assert capsys.readouterr().err == ""  # auto falls back silently
+        # an explicit backend with a fallback warns in one line and uses it ...
+        assert resolve_backend("cpu", reg) == "torch"
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "cpu rasterizer unavailable" in err[0] and "using torch" in err[0]
+        # ... one without a fallback is a clear error
         with pytest.raises(ConfigError, match="not available"):
-            resolve_backend("cpu", reg)
+            resolve_backend("gsplat", reg)
     finally:
         _FakeCpu.ok = True
         _FakeGsplat.ok = True
