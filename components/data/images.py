@@ -212,11 +212,16 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
 # writing
 
 
-def default_file_mode() -> int:
-    """Permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask)."""
+def current_umask() -> int:
+    """The process umask (reading it means setting it, so it is restored at once)."""
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
+
+
+def default_file_mode() -> int:
+    """Permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask)."""
+    return 0o666 & ~current_umask()
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:

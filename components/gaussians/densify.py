@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from components.gaussians.model import PARAM_NAMES, GaussianModel
+from components.gaussians.model import PARAM_NAMES, GaussianModel, logit
 from components.rasterizers.base import RasterizeOutput
 from components.rasterizers.projection import quat_to_rotmat
 
@@ -140,7 +140,7 @@ class Densifier:
         self._apply(model, optimizers, make, keep=keep, grow=2 * int(sel.sum()))
 
     def _reset_opacity(self, model: GaussianModel, optimizers) -> None:
-        cap = _logit(2.0 * self.config.prune_opacity)
+        cap = logit(2.0 * self.config.prune_opacity)
         new = nn.Parameter(model.opacity_logits.detach().clamp_max(cap))
         _swap(
             optimizers["opacity_logits"], model.params["opacity_logits"], new, lambda s: torch.zeros_like(s)
@@ -191,8 +191,3 @@ def _cap(clone: Tensor, split: Tensor, score: Tensor, room: int) -> tuple[Tensor
     allowed = torch.zeros_like(cand)
     allowed[order[:room]] = True
     return clone & allowed, split & allowed
-
-
-def _logit(p: float) -> float:
-    p = min(max(p, 1e-6), 1 - 1e-6)
-    return math.log(p / (1 - p))

@@ -134,7 +134,7 @@ class GaussianModel(nn.Module):
             "means": points.clone(),
             "quats": torch.tensor([1.0, 0.0, 0.0, 0.0], device=points.device).repeat(n, 1),
             "log_scales": log_scales,
-            "opacity_logits": torch.full((n,), _logit(config.init_opacity), device=points.device),
+            "opacity_logits": torch.full((n,), logit(config.init_opacity), device=points.device),
             "sh0": rgb_to_sh(colors)[:, None, :],
             "shN": torch.zeros(n, k - 1, 3, device=points.device),
         }
@@ -256,7 +256,8 @@ class GaussianModel(nn.Module):
         )
 
 
-def _logit(p: float) -> float:
+def logit(p: float) -> float:
+    """Inverse sigmoid of a probability, clamped away from 0 and 1 so it stays finite."""
     p = min(max(p, 1e-6), 1.0 - 1e-6)
     return math.log(p / (1.0 - p))
 

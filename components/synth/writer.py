@@ -18,7 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from components.data.images import to_uint8, write_array_atomic, write_bytes_atomic, write_image_atomic
+from components.data.images import (
+    current_umask,
+    to_uint8,
+    write_array_atomic,
+    write_bytes_atomic,
+    write_image_atomic,
+)
 from tridehaze_plugin.errors import UserError
 
 GL_CV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -60,19 +66,13 @@ def staged_output(out: Path, overwrite: bool, flag: str = "--output-dir") -> Ite
         raise
 
 
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def share_like_umask(path: Path) -> None:
     """Give ``path`` (and everything under it) the permissions a plain ``open``/``mkdir`` would have.
 
     Temporary files and folders are created private (0600 / 0700); a dataset or image meant for
     others must not stay that way after the rename.
     """
-    mask = _current_umask()
+    mask = current_umask()
     path = Path(path)
     if path.is_dir():
         for p in [path, *path.rglob("*")]:
