@@ -1,3 +1,3 @@
 """Registered building blocks. Importing this package registers every built-in component."""
 
-from components import data, gaussians, losses, rasterizers  # noqa: F401  (registration side effects)
+from components import data, gaussians, gradients, losses, medium, rasterizers  # noqa: F401  (registration side effects)

@@ -1,13 +1,15 @@
 """The Gaussian-splatting pipeline assembled from registered components.
 
-It composes a Gaussian model, a rasterizer and a photometric loss, all chosen by config. The
-medium, gradient policy and extra loss terms of Tri-DehazeGS plug in here as further
-components; with none of them it is plain 3DGS, whose clean and hazy renders coincide.
+It composes a Gaussian model, a rasterizer and a photometric loss, plus the Tri-DehazeGS parts:
+a medium field composited physically (I = J*T + S), a gradient policy, the depth and dark-channel
+losses and the two-stage schedule. With the ``none`` medium it is plain 3DGS, whose clean and
+hazy renders coincide; every ablation is a field of this config (docs/medium.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import torch
 from torch import Tensor, nn
@@ -15,12 +17,37 @@ from torch import Tensor, nn
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModelConfig
+from components.losses.dcp import dcp_transmittance_loss
+from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
-from components.rasterizers.base import RasterizerConfig
+from components.medium.base import FieldBounds, MediumConfig
+from components.medium.compositing import (
+    CompositeConfig,
+    MediumCompositor,
+    MediumRender,
+    composite,
+    homogeneous_along_rays,
+)
+from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.base import Pipeline, StepResult
 from pipelines.datamanager import DataManager
+from pipelines.haze_priors import (
+    ViewPrior,
+    build_view_priors,
+    dcp_per_view,
+    dehaze_point_colors,
+    estimate_medium,
+    resolve_depth_prior,
+    scaled_step,
+)
 from pipelines.metrics import psnr
+from pipelines.warmup_depth import warmup_depths
+from tridehaze_plugin.config import RegistryChoice
 from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.registry import REGISTRY
+
+DEFAULT_DEPTH_PRIOR = "warmup"
+"""Pseudo-depth used by ``auto`` when the dataset has no depth files (measured: docs/medium.md)."""
 
 
 @dataclass
@@ -39,22 +66,91 @@ class PipelineConfig:
     """Background colour behind the Gaussians (RGB in [0, 1])."""
     random_background: bool = False
     """Use a random background colour each step (discourages Gaussians from encoding the background)."""
+    medium: MediumConfig = field(default_factory=MediumConfig)
+    """The view-shared medium (``--pipeline.medium.backend none`` is plain 3DGS)."""
+    composite: CompositeConfig = field(default_factory=CompositeConfig)
+    """Ray marching of the medium between the camera and the rendered surface."""
+    gradient_policy: Annotated[str, RegistryChoice("gradient_policy")] = "none"
+    """Transmittance gradient compensation: ``none``, ``tgc`` (from the start) or ``md-tgc``
+    (only once the medium is frozen)."""
+    t_min: float = 0.1
+    """Compensation factor is 1 / clamp(T, t_min): at most 1 / t_min."""
+    densify_grad: Literal["uncompensated", "compensated"] = "uncompensated"
+    """Which screen-space gradient densification sees while compensation is on: ``uncompensated``
+    multiplies each Gaussian's gradient by clamp(T, t_min) at its centre (undoing the 1/T boost, so
+    dense haze does not trigger extra growth); ``compensated`` uses the boosted gradient as is."""
+    depth_prior: Literal["auto", "files", "dcp", "sfm", "warmup", "none"] = "auto"
+    """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
+    channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
+    every training view has one, else the measured best (warmup)."""
+    warmup_steps: int = 300
+    """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
+    lambda_depth: float = 0.0
+    """Weight of the depth loss (1 - Pearson correlation + lambda_smooth * smoothness); 0 = off."""
+    lambda_smooth: float = 0.1
+    """Weight of edge-aware depth smoothness inside the depth loss; 0 = off."""
+    lambda_dcp: float = 0.0
+    """Weight of the dark-channel transmittance loss ||T - T_dcp||^2 (Stage I only); 0 = off."""
+    freeze_step: int | None = None
+    """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
+    freeze_fraction: float = 0.2
+    """Stage I length as a fraction of ``--max-steps`` when ``freeze_step`` is None (paper: 3k/15k)."""
+    medium_hold_fraction: float = 0.05
+    """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
+    transparent and the rendered depth is the far bound, which would drive the extinction down."""
+    init_medium: bool = True
+    """Start the medium from the dark channel: airlight from the brightest dark-channel pixels,
+    extinction from -ln T_dcp at the seed points' distances (else the medium config's values)."""
+    dehaze_seed_colors: bool = True
+    """Take the estimated haze out of the seed points' colours before initialising the Gaussians."""
 
     def check_values(self) -> None:
         if not all(0.0 <= c <= 1.0 for c in self.background):
             raise ConfigError(f"--pipeline.background must be three values in [0, 1], got {self.background}")
         if not 0.0 <= self.loss.lambda_ssim <= 1.0:
             raise ConfigError(f"--pipeline.loss.lambda-ssim must be in [0, 1], got {self.loss.lambda_ssim}")
+        if not 0.0 < self.t_min <= 1.0:
+            raise ConfigError(f"--pipeline.t-min must be in (0, 1], got {self.t_min}")
+        for flag, v in (
+            ("--pipeline.lambda-depth", self.lambda_depth),
+            ("--pipeline.lambda-smooth", self.lambda_smooth),
+            ("--pipeline.lambda-dcp", self.lambda_dcp),
+            ("--pipeline.warmup-steps", self.warmup_steps),
+        ):
+            if v < 0:
+                raise ConfigError(f"{flag} must be >= 0, got {v}")
+        if self.composite.num_samples < 1:
+            raise ConfigError(
+                f"--pipeline.composite.num-samples must be >= 1, got {self.composite.num_samples}"
+            )
+        if self.composite.ray_stride is not None and self.composite.ray_stride < 1:
+            raise ConfigError(
+                f"--pipeline.composite.ray-stride must be >= 1, got {self.composite.ray_stride}"
+            )
+        if self.medium.light == "sh" and not 0 <= self.medium.sh_degree <= 2:
+            raise ConfigError(f"--pipeline.medium.sh-degree must be 0, 1 or 2, got {self.medium.sh_degree}")
+        if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
+            raise ConfigError(
+                "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
+            )
 
-    def setup(self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000) -> GaussianPipeline:
-        return GaussianPipeline(self, datamanager, seed, max_steps)
+    def setup(
+        self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000, training: bool = True
+    ) -> GaussianPipeline:
+        """``training=False`` (reloading a run to render it) skips the per-view priors and warm-up."""
+        return GaussianPipeline(self, datamanager, seed, max_steps, training)
 
 
 class GaussianPipeline(Pipeline):
-    """3D Gaussians + rasterizer + photometric loss on one view per step."""
+    """3D Gaussians (+ optional medium) + rasterizer + losses on one view per step."""
 
     def __init__(
-        self, config: PipelineConfig, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000
+        self,
+        config: PipelineConfig,
+        datamanager: DataManager,
+        seed: int = 0,
+        max_steps: int = 30_000,
+        training: bool = True,
     ) -> None:
         super().__init__()
         self.config = config
@@ -64,56 +160,185 @@ class GaussianPipeline(Pipeline):
         torch.manual_seed(seed)
         extent = float(scene.cameras.centers.norm(dim=-1).max()) * 1.1 if len(scene) > 1 else 1.0
         self.scene_extent = max(extent, 1e-6)
-        self.model = config.model.setup(
-            points=scene.points, colors=scene.point_colors, scene_extent=self.scene_extent
-        ).to(device)
-        self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
+        self.max_steps = max_steps
+        self.freeze_step = scaled_step(config.freeze_step, config.freeze_fraction, max_steps)
+        self.hold_steps = scaled_step(None, config.medium_hold_fraction, max_steps)
         self.rasterizer = config.rasterizer.setup()
         self.loss_fn = config.loss.setup()
+        self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
+        self.compositor = MediumCompositor(config.composite)
+        bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
+        self.medium = config.medium.setup(bounds=bounds).to(device)
+        self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
+        self.init_info: dict[str, float | str] = {}
+
+        train = datamanager.train_indices
+        uses_medium = self.medium.has_medium
+        source = resolve_depth_prior(config.depth_prior, datamanager, DEFAULT_DEPTH_PRIOR)
+        needs_depth = training and config.lambda_depth > 0 and source != "none"
+        needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
+        dcp = dcp_per_view(datamanager, train) if needs_dcp or (needs_depth and source == "dcp") else {}
+        points, colors = scene.points, scene.point_colors
+        if uses_medium and config.init_medium and dcp:
+            est = estimate_medium(datamanager, dcp, points)
+            beta = est.beta if est.beta is not None else config.medium.init_beta
+            self.medium.initialize(beta, est.airlight)
+            self.init_info.update(
+                init_beta=beta, init_airlight=str([round(a, 3) for a in est.airlight.tolist()])
+            )
+            if config.dehaze_seed_colors and points is not None and colors is not None:
+                colors = dehaze_point_colors(points, colors, scene.cameras.centers, est)
+        self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent).to(
+            device
+        )
+        if getattr(self.medium, "renders_with_gaussians", False):
+            self.medium.attach(self.model)
+        self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=device)
         )
         self._gen = torch.Generator(device="cpu").manual_seed(seed)
 
+        warm = None
+        if needs_depth and source == "warmup":
+            warm = warmup_depths(
+                datamanager, config.model, self.rasterizer, scene.points, scene.point_colors,
+                self.scene_extent, config.warmup_steps, seed,
+            )  # fmt: skip
+        self.depth_source = source if needs_depth else "none"
+        self.priors: dict[int, ViewPrior] = (
+            build_view_priors(datamanager, train, dcp, self.depth_source, scene.points, warm)
+            if dcp or needs_depth
+            else {}
+        )
+        self._last: RasterizeOutput | None = None
+        self._dens_weight: Tensor | None = None
+
+    # ----------------------------------------------------------------------------- schedule
+    def stage_at(self, step: int) -> int:
+        """1: scene and medium fitted jointly; 2: medium frozen, compensation per the policy."""
+        return 1 if step < self.freeze_step else 2
+
+    def _medium_trainable(self, step: int) -> bool:
+        return self.stage_at(step) == 1 and step >= self.hold_steps
+
+    def _set_medium_trainable(self, on: bool) -> None:
+        for p in self.medium.parameters():
+            p.requires_grad_(on)
+        if "medium" in self.model.extra_lrs:  # gaussian-bound attributes live on the Gaussians
+            self.model.attribute("medium").requires_grad_(on)
+
     # ----------------------------------------------------------------------------- training
     def train_loss(self, step: int) -> StepResult:
-        dm = self.datamanager
+        cfg, dm = self.config, self.datamanager
+        stage = self.stage_at(step)
+        self.stage.fill_(stage)
+        self._set_medium_trainable(self._medium_trainable(step))
         idx = dm.train_index(step)
         target = dm.image(idx)  # [H, W, 3]
         bg = self.background
-        if self.config.random_background:
+        if cfg.random_background:
             bg = torch.rand(3, generator=self._gen).to(bg)
-        out = self._rasterize(dm.camera(idx), step, bg)
-        rgb = out.rgb[0]  # [H, W, 3]
-        loss, terms = self.loss_fn(rgb, target)
+        cam = dm.camera(idx)
+        out = self._rasterize(cam, step, bg)
+        clean = out.rgb[0]  # [H, W, 3]
+        depth = out.depth[0]  # [H, W, 1]
+        metrics: dict[str, float] = {}
+        med = self._medium(cam, out, step)
+        if med is not None:
+            hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
+        else:
+            hazy = clean
+        loss, terms = self.loss_fn(hazy, target)
+        metrics.update({k: float(v) for k, v in terms.items()})
+        prior = self.priors.get(idx)
+        if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
+            d = depth[..., 0]
+            corr = pearson_depth_loss(d, prior.depth, prior.depth_valid)
+            loss = loss + cfg.lambda_depth * corr
+            metrics["depth_corr"] = 1.0 - float(corr.detach())
+            if cfg.lambda_smooth > 0:
+                loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
+        if med is not None:
+            T = med.transmittance[..., 0]  # [H, W]
+            if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
+                dcp = dcp_transmittance_loss(T, prior.t_dcp)
+                loss = loss + cfg.lambda_dcp * dcp
+                metrics["dcp"] = float(dcp.detach())
+            reg = self.medium.regularizer() if self._medium_trainable(step) else None
+            if reg is not None:
+                loss = loss + reg
+            metrics["mean_T"] = float(T.detach().mean())
         self._last = out
-        metrics = {k: float(v) for k, v in terms.items()}
-        metrics["psnr"] = float(psnr(rgb.detach(), target))
+        self._dens_weight = self._densify_weight(out, med, stage)
+        metrics["psnr"] = float(psnr(hazy.detach(), target))
         return StepResult(loss=loss, metrics=metrics)
 
+    def _densify_weight(self, out: RasterizeOutput, med: MediumRender | None, stage: int) -> Tensor | None:
+        """clamp(T, t_min) at each Gaussian's projected centre while compensation is on."""
+        if med is None or not self.policy.active(stage) or self.config.densify_grad == "compensated":
+            return None
+        H, W = med.transmittance.shape[:2]
+        xy = out.means2d.detach()[0]  # [N, 2] pixels
+        x = xy[:, 0].long().clamp(0, W - 1)
+        y = xy[:, 1].long().clamp(0, H - 1)
+        return med.transmittance.detach()[y, x, 0].clamp(min=self.config.t_min)[None]  # [1, N]
+
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
-        return self.model.param_groups()
+        return {**self.model.param_groups(), **self.medium.param_groups()}
 
     def after_backward(self, step: int) -> None:
-        self.densifier.collect(self._last)
+        if self._last is not None:
+            self.densifier.collect(self._last, self._dens_weight)
 
     def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         self.last_refine = self.densifier.step(step, self.model, optimizers)
 
     # ---------------------------------------------------------------------------- rendering
-    def _rasterize(self, camera: Cameras, step: int | None, background: Tensor):
+    def _rasterize(self, camera: Cameras, step: int | None, background: Tensor) -> RasterizeOutput:
         # no step (rendering for eval/view): all SH bands
         return self.model.render(self.rasterizer, camera, 10**9 if step is None else step, background)
+
+    def _medium(self, camera: Cameras, out: RasterizeOutput, step: int | None) -> MediumRender | None:
+        """T and S for the view, or None without a medium."""
+        if not self.medium.has_medium:
+            return None
+        depth, alpha = out.depth[0], out.alpha[0]  # [H, W, 1]
+        if getattr(self.medium, "renders_with_gaussians", False):
+            attr = self.model.attribute("medium")  # [N, 4]
+            blended = self.rasterizer.rasterize(
+                self.model.means, self.model.quats, self.model.scales, self.model.opacities, attr,
+                camera.viewmats().to(attr), camera.Ks().to(attr), int(camera.width[0]), int(camera.height[0]),
+                background=torch.zeros(4, device=attr.device),
+            ).rgb[0]  # fmt: skip
+            beta, light = self.medium.pixel_medium(blended, alpha)
+            end = self.compositor.end_depth(depth, alpha, self.compositor.far_bound(self.medium))
+            return homogeneous_along_rays(beta, light, camera, end, self.config.composite.t_floor)
+        return self.compositor(self.medium, camera, depth, alpha)
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:
         out = self._rasterize(camera, step, self.background)
-        clean = out.rgb[0].clamp(0, 1)  # [H, W, 3]
-        # no medium: the composite equals the clean render
-        return {"clean": clean, "hazy": clean, "depth": out.depth[0], "alpha": out.alpha[0]}
+        clean = out.rgb[0]  # [H, W, 3]
+        med = self._medium(camera, out, step)
+        if med is None:
+            T = torch.ones_like(out.alpha[0])
+            S = torch.zeros_like(clean)
+            hazy = clean
+        else:
+            T, S = med.transmittance, med.scattering
+            hazy = composite(clean, med)
+        return {
+            "clean": clean.clamp(0, 1),
+            "hazy": hazy.clamp(0, 1),
+            "transmittance": T,
+            "scattering": S.clamp(0, 1),
+            "depth": out.depth[0],
+            "alpha": out.alpha[0],
+        }
 
     def output_names(self) -> list[str]:
-        return ["clean", "hazy", "depth", "alpha"]
+        return ["clean", "hazy", "transmittance", "scattering", "depth", "alpha"]
 
     def stats(self) -> dict[str, float | int]:
-        return {"gaussians": self.model.num_gaussians}
+        return {"gaussians": self.model.num_gaussians, "stage": int(self.stage)}

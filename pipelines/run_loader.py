@@ -47,7 +47,7 @@ def load_run(
     payload = load_checkpoint(ckpt, map_location=device)
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, torch.device(device), seed=cfg.seed)
-    pipeline = cfg.pipeline.setup(dm, seed=cfg.seed, max_steps=cfg.max_steps)
+    pipeline = cfg.pipeline.setup(dm, seed=cfg.seed, max_steps=cfg.max_steps, training=False)
     try:
         pipeline.load_state_dict(payload["pipeline"])
     except (RuntimeError, KeyError) as exc:

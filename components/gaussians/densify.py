@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from components.gaussians.model import PARAM_NAMES, GaussianModel, logit
+from components.gaussians.model import GaussianModel, logit
 from components.rasterizers.base import RasterizeOutput
 from components.rasterizers.projection import quat_to_rotmat
 
@@ -57,8 +57,12 @@ class Densifier:
         self.count: Tensor | None = None  # [N]
 
     # ------------------------------------------------------------------ statistics
-    def collect(self, out: RasterizeOutput) -> None:
-        """Accumulate the NDC-space gradient norm of visible Gaussians (call after backward)."""
+    def collect(self, out: RasterizeOutput, weight: Tensor | None = None) -> None:
+        """Accumulate the NDC-space gradient norm of visible Gaussians (call after backward).
+
+        ``weight [C, N]`` multiplies each Gaussian's gradient norm first; the Tri-DehazeGS pipeline
+        uses it to take out the transmittance compensation (docs/medium.md).
+        """
         grad = out.means2d.grad
         if grad is None:
             return
@@ -67,6 +71,8 @@ class Densifier:
             self._reset_stats(n, grad.device)
         scale = torch.tensor([out.width / 2.0 * c, out.height / 2.0 * c], device=grad.device)
         norms = (grad.detach() * scale).norm(dim=-1)  # [C, N]
+        if weight is not None:
+            norms = norms * weight
         visible = out.radii > 0  # [C, N]
         self.grad_sum += (norms * visible).sum(0)
         self.count += visible.sum(0)
@@ -157,7 +163,7 @@ class Densifier:
     ) -> None:
         """Rebuild every parameter with ``make`` and carry Adam moments: kept rows move, new rows are 0."""
         new_params = {}
-        for name in PARAM_NAMES:
+        for name in model.param_names:
             old = model.params[name]
             new = nn.Parameter(make(old.detach(), name).contiguous())
 

@@ -89,6 +89,8 @@ class GaussianModel(nn.Module):
         if missing:
             raise ValueError(f"missing Gaussian parameters: {sorted(missing)}")
         self.params = nn.ParameterDict({k: nn.Parameter(params[k].contiguous()) for k in PARAM_NAMES})
+        self.extra_lrs: dict[str, float] = {}
+        """Learning rates of per-Gaussian attributes added by other components (see add_attribute)."""
 
     # ---------------------------------------------------------------- construction
 
@@ -193,6 +195,27 @@ class GaussianModel(nn.Module):
 
     # ---------------------------------------------------------------- training helpers
 
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """The core parameters then any added attributes; all share the first dimension N."""
+        return PARAM_NAMES + tuple(self.extra_lrs)
+
+    def add_attribute(self, name: str, values: Tensor, lr: float) -> None:
+        """Carry an extra per-Gaussian tensor ``values [N, ...]`` (e.g. a Gaussian-bound medium).
+
+        It is optimised with ``lr`` and cloned, split and pruned with the Gaussians, so a component
+        that needs per-Gaussian state never edits the model's own parameters.
+        """
+        if name in self.params:
+            raise KeyError(f"Gaussian attribute {name!r} already exists")
+        if values.shape[0] != self.num_gaussians:
+            raise ValueError(f"attribute {name!r} needs {self.num_gaussians} rows, got {values.shape[0]}")
+        self.params[name] = nn.Parameter(values.detach().to(self.means).contiguous())
+        self.extra_lrs[name] = float(lr)
+
+    def attribute(self, name: str) -> Tensor:
+        return self.params[name]
+
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Every parameter with its learning rate, so the trainer builds optimizers generically."""
         cfg = self.config
@@ -204,15 +227,16 @@ class GaussianModel(nn.Module):
             "sh0": cfg.sh0_lr,
             "shN": cfg.shN_lr if cfg.shN_lr is not None else cfg.sh0_lr / 20.0,
         }
-        return {name: (self.params[name], lrs[name]) for name in PARAM_NAMES}
+        lrs.update(self.extra_lrs)
+        return {name: (self.params[name], lrs[name]) for name in self.param_names}
 
     def replace_params(self, new: dict[str, Tensor]) -> None:
         """Swap parameters by name (e.g. after densification); all must keep one common N."""
         for name, value in new.items():
-            if name not in PARAM_NAMES:
+            if name not in self.param_names:
                 raise KeyError(f"unknown Gaussian parameter {name!r}")
             self.params[name] = value if isinstance(value, nn.Parameter) else nn.Parameter(value)
-        sizes = {self.params[k].shape[0] for k in PARAM_NAMES}
+        sizes = {self.params[k].shape[0] for k in self.param_names}
         if len(sizes) != 1:
             raise ValueError(f"Gaussian parameters disagree on N: {sizes}")
 
@@ -221,7 +245,7 @@ class GaussianModel(nn.Module):
     ) -> None:
         # checkpoints saved after densification hold a different N: resize before copying
         resized = {}
-        for name in PARAM_NAMES:
+        for name in self.param_names:
             key = f"{prefix}params.{name}"
             if key in state_dict and state_dict[key].shape != self.params[name].shape:
                 resized[name] = torch.empty_like(state_dict[key], device=self.params[name].device)

@@ -1,0 +1,171 @@
+"""Cost of a full training iteration: vanilla-gs vs Tri-DehazeGS at the same settings.
+
+Every variant trains on the same generated hazy scene with the same Gaussians (densification off,
+so the count stays fixed) and the same rasterizer; an iteration is forward + losses + backward +
+optimizer step, i.e. exactly what ``td-train`` runs. Variants are interleaved round by round so
+load from other users of a shared machine hits all alike; medians and ratios to vanilla-gs are
+reported. The Tri-DehazeGS variants differ in how many rays the medium is marched along
+(``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation).
+
+    python benchmarks/iteration_cost.py                       # 320x240, ~50k Gaussians
+    python benchmarks/iteration_cost.py --width 160 --height 120 --points 10000
+
+Writes ``benchmarks/results/iteration_cost.{json,csv,png}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from components.data.loader import load_scene  # noqa: E402
+from components.synth.generate import SceneConfig, generate_scene  # noqa: E402
+from pipelines.datamanager import DataManager  # noqa: E402
+from pipelines.optimizers import Optimizers  # noqa: E402
+from tridehaze_plugin.registry import REGISTRY, load_all  # noqa: E402
+
+RESULTS = REPO / "benchmarks" / "results"
+
+
+def variants() -> dict[str, tuple[str, dict]]:
+    """name -> (method, pipeline overrides)."""
+    return {
+        "vanilla-gs": ("vanilla-gs", {}),
+        "tri-dehaze (default: ~1200 rays)": ("tri-dehaze", {}),
+        "tri-dehaze (stride 4)": ("tri-dehaze", {"stride": 4}),
+        "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
+        "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
+    }
+
+
+def build(method: str, over: dict, data: Path, points: int, backend: str):
+    cfg = REGISTRY.get("method", method).make_config()
+    p = cfg.pipeline
+    p = replace(
+        p,
+        densify=replace(p.densify, enabled=False),
+        rasterizer=replace(p.rasterizer, backend=backend),
+        model=replace(p.model, max_init_points=points),
+        composite=replace(p.composite, ray_stride=over.get("stride", p.composite.ray_stride)),
+        depth_prior="sfm" if p.lambda_depth > 0 else p.depth_prior,
+    )
+    cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
+    scene = load_scene(cfg.dataset)
+    dm = DataManager(scene, torch.device("cpu"), seed=0)
+    pipe = cfg.pipeline.setup(dm, seed=0, max_steps=cfg.max_steps)
+    opt = Optimizers(pipe.param_groups(), cfg.optimizer, cfg.max_steps)
+    return pipe, opt
+
+
+def iteration(pipe, opt, step: int) -> float:
+    t0 = time.perf_counter()
+    opt.schedule(step)
+    res = pipe.train_loss(step)
+    opt.zero_grad()
+    res.loss.backward()
+    pipe.after_backward(step)
+    opt.step()
+    pipe.after_optimizer_step(step, opt.optimizers)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=240)
+    ap.add_argument("--points", type=int, default=50_000, help="Gaussians (seed points sampled)")
+    ap.add_argument("--views", type=int, default=8)
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=6, help="timed iterations per variant per round")
+    ap.add_argument(
+        "--step-offset", type=int, default=1000, help="steps are timed from here (Stage II, SH on)"
+    )
+    ap.add_argument("--backend", default="auto")
+    ap.add_argument("--out", type=Path, default=RESULTS / "iteration_cost")
+    args = ap.parse_args()
+    load_all()
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "scene"
+        generate_scene(
+            SceneConfig(
+                output_dir=data, layout="courtyard", haze="patchy", num_views=args.views,
+                width=args.width, height=args.height, num_points=args.points, samples=32,
+            )
+        )  # fmt: skip
+        built = {name: build(m, o, data, args.points, args.backend) for name, (m, o) in variants().items()}
+        times: dict[str, list[float]] = {name: [] for name in built}
+        names = list(built)
+        for name in names:  # warm-up: compile kernels, fill caches
+            iteration(*built[name], args.step_offset)
+        for r in range(args.rounds):
+            for name in names[r % len(names) :] + names[: r % len(names)]:
+                for k in range(args.steps):
+                    times[name].append(iteration(*built[name], args.step_offset + 1 + r * args.steps + k))
+        n_gauss = {name: built[name][0].model.num_gaussians for name in names}
+    base = statistics.median(times["vanilla-gs"])
+    rows = []
+    for name in names:
+        med = statistics.median(times[name])
+        rows.append(
+            {
+                "variant": name,
+                "median_s": round(med, 4),
+                "min_s": round(min(times[name]), 4),
+                "ratio_to_vanilla": round(med / base, 3),
+                "gaussians": n_gauss[name],
+                "samples": len(times[name]),
+            }
+        )
+    meta = {
+        "width": args.width,
+        "height": args.height,
+        "views": args.views,
+        "threads": torch.get_num_threads(),
+        "backend": args.backend,
+        "timed_from_step": args.step_offset,
+    }
+    print(f"{args.width}x{args.height}, {rows[0]['gaussians']} Gaussians, {torch.get_num_threads()} threads")
+    print(f"{'variant':38s} {'median s':>9s} {'min s':>8s} {'x vanilla':>10s}")
+    for row in rows:
+        print(
+            f"{row['variant']:38s} {row['median_s']:9.4f} {row['min_s']:8.4f} {row['ratio_to_vanilla']:10.2f}"
+        )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    with args.out.with_suffix(".csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        ax.barh([r["variant"] for r in rows][::-1], [r["median_s"] for r in rows][::-1], color="#4a7ab8")
+        for i, r in enumerate(rows[::-1]):
+            ax.text(r["median_s"], i, f"  {r['ratio_to_vanilla']:.2f}x", va="center", fontsize=8)
+        ax.set_xlabel("median seconds per iteration")
+        ax.set_title(f"iteration cost, {args.width}x{args.height}, {rows[0]['gaussians']} Gaussians")
+        fig.tight_layout()
+        fig.savefig(args.out.with_suffix(".png"), dpi=120)
+    except ImportError:
+        print("matplotlib missing: no plot (pip install -e '.[bench]')")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,109 @@
+"""Dark channel prior (He et al., CVPR 2009): transmittance and airlight from one hazy image.
+
+Under I = J t + A (1 - t), haze-free outdoor patches have a colour channel near 0 (shadows,
+saturated colours), so the patch-wise minimum of I / A gives 1 - t. The estimate supervises the
+medium's transmittance in Stage I (``dcp_transmittance_loss``) and yields a pseudo-depth
+(-ln t, see ``depth_priors``). The core is numpy/OpenCV: it runs once per view, not per step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+BRIGHTEST_FRACTION = 1e-3
+"""Share of the dark channel's brightest pixels whose mean colour is the airlight (He et al.: 0.1%)."""
+
+
+@dataclass
+class DCPResult:
+    """Per-image dark-channel estimates."""
+
+    transmittance: np.ndarray  # [H, W] float32, guided-filter refined, in [t0, 1]
+    airlight: np.ndarray  # [3] float32, RGB
+    dark: np.ndarray  # [H, W] float32, dark channel of the input image
+
+
+def default_patch(height: int, width: int) -> int:
+    """Odd patch size scaling with the image (15 at 600 px as in He et al.; >= 3)."""
+    return max(3, round(min(height, width) / 40)) | 1
+
+
+def dark_channel(image: np.ndarray, patch: int) -> np.ndarray:
+    """[H, W, C] -> [H, W]: min over channels, then min over a ``patch`` x ``patch`` square."""
+    mins = np.ascontiguousarray(image.min(axis=2), dtype=np.float32)  # [H, W]
+    # erode = min filter; its default border value never wins a min, so edges are not darkened
+    return cv2.erode(mins, np.ones((patch, patch), np.uint8))
+
+
+def estimate_airlight(image: np.ndarray, dark: np.ndarray) -> np.ndarray:
+    """Mean colour [3] of the input at the brightest 0.1% of the dark channel (the haziest pixels)."""
+    flat = dark.reshape(-1)
+    n = max(1, round(BRIGHTEST_FRACTION * flat.size))
+    idx = np.argpartition(flat, flat.size - n)[flat.size - n :]  # [n]
+    return image.reshape(-1, image.shape[2])[idx].mean(axis=0).astype(np.float32)
+
+
+def _as_float(image: np.ndarray) -> np.ndarray:
+    """uint8 or float [H, W, 3] -> float32 in [0, 1]."""
+    if image.dtype == np.uint8:
+        return image.astype(np.float32) / 255.0
+    return np.clip(image.astype(np.float32), 0.0, 1.0)
+
+
+def estimate_dcp(
+    image: np.ndarray,
+    patch: int | None = None,
+    omega: float = 0.95,
+    t0: float = 0.05,
+    guided_radius: int | None = None,
+    guided_eps: float = 1e-3,
+) -> DCPResult:
+    """Transmittance and airlight of a hazy RGB image [H, W, 3] (float in [0, 1] or uint8).
+
+    ``omega`` < 1 keeps a little haze so far objects still look far (He et al.); ``t0`` bounds t
+    away from 0 (sky and airlight-coloured pixels, where the prior fails, end up there). The coarse
+    patch-wise t is refined by a guided filter on the grey image (``guided_radius`` default: 4
+    patches), which restores object edges that the min filter blurred.
+    """
+    img = _as_float(image)  # [H, W, 3]
+    h, w = img.shape[:2]
+    patch = default_patch(h, w) if patch is None else int(patch)
+    radius = 4 * patch if guided_radius is None else int(guided_radius)
+    dark = dark_channel(img, patch)  # [H, W]
+    airlight = estimate_airlight(img, dark)  # [3]
+    t = 1.0 - omega * dark_channel(img / np.maximum(airlight, 1e-3), patch)  # [H, W]
+    if radius > 0:
+        grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)  # [H, W]
+        t = cv2.ximgproc.guidedFilter(grey, t.astype(np.float32), radius, guided_eps)
+    t = np.clip(t, t0, 1.0).astype(np.float32)
+    return DCPResult(transmittance=t, airlight=airlight, dark=dark)
+
+
+def dehaze(image: np.ndarray, result: DCPResult, t0: float = 0.05) -> np.ndarray:
+    """Single-image DCP dehazing J = (I - A) / max(t, t0) + A, clipped to [0, 1] (a baseline)."""
+    img = _as_float(image)  # [H, W, 3]
+    t = np.maximum(result.transmittance, t0)[..., None]  # [H, W, 1]
+    a = result.airlight[None, None, :]  # [1, 1, 3]
+    return np.clip((img - a) / t + a, 0.0, 1.0).astype(np.float32)
+
+
+def dcp_transmittance_loss(T_hat: Tensor, T_dcp: Tensor, mask: Tensor | None = None) -> Tensor:  # noqa: N803
+    """Mean squared error between the rendered transmittance and the DCP estimate, both [H, W].
+
+    The mask is a weight (no boolean indexing, so no host sync); an empty mask gives 0.
+    """
+    diff = (T_hat - T_dcp.to(T_hat)).square()  # [H, W]
+    if mask is None:
+        return diff.mean()
+    w = mask.to(diff.dtype)
+    return (diff * w).sum() / w.sum().clamp_min(1.0)
+
+
+def dcp_transmittance_tensor(image: np.ndarray, **kwargs) -> torch.Tensor:
+    """Convenience: ``estimate_dcp(image, **kwargs).transmittance`` as a float32 tensor [H, W]."""
+    return torch.from_numpy(estimate_dcp(image, **kwargs).transmittance)

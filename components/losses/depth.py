@@ -1,0 +1,67 @@
+"""Depth regularisers for the Gaussian depth render: Pearson correlation and edge-aware smoothness.
+
+Both are scale-free on purpose: the pseudo-depth priors (files, dark channel, SfM) are only
+defined up to an unknown affine map, and the rendered depth lives in the normalised world.
+Masks are applied as weights (no boolean indexing, no ``.item()``), so neither function forces a
+host-device sync in the training step.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+MIN_VALID_PIXELS = 10
+"""Fewer valid pixels than this and a correlation is noise: the loss returns 0 instead."""
+
+
+def _masked_mean(x: Tensor, w: Tensor, n: Tensor) -> Tensor:
+    return (x * w).sum() / n
+
+
+def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: float = 1e-8) -> Tensor:
+    """1 - Pearson correlation of ``pred`` and ``prior`` [H, W] over ``mask`` (bool [H, W]).
+
+    Each map is standardised per view (mean 0, std 1), so the loss is invariant to any positive
+    affine change of either input; it lies in [0, 2] (0: perfectly correlated, 2: anti-correlated).
+    Non-finite prior pixels are ignored. ``eps`` is added to the variance so a constant map gives a
+    finite loss (1) and finite gradients. Returns a differentiable 0 below ``MIN_VALID_PIXELS``.
+    """
+    valid = torch.isfinite(prior)
+    if mask is not None:
+        valid = valid & mask.bool()
+    w = valid.to(pred.dtype)  # [H, W]
+    count = w.sum()
+    n = count.clamp_min(1.0)
+    p = torch.where(valid, pred, torch.zeros_like(pred))
+    q = torch.where(valid, prior.to(pred.dtype), torch.zeros_like(pred))
+    p = (p - _masked_mean(p, w, n)) * w
+    q = (q - _masked_mean(q, w, n)) * w
+    p = p / torch.sqrt(p.square().sum() / n + eps)
+    q = q / torch.sqrt(q.square().sum() / n + eps)
+    loss = 1.0 - (p * q).sum() / n
+    return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)
+
+
+def edge_aware_smoothness(
+    depth: Tensor, image: Tensor, mask: Tensor | None = None, gamma: float = 10.0, eps: float = 1e-8
+) -> Tensor:
+    """Mean of |dx D| exp(-gamma |dx I|) + |dy D| exp(-gamma |dy I|), depth [H, W], image [H, W, 3].
+
+    Depth discontinuities are allowed where the image has an edge and penalised in flat regions.
+    The depth is divided by its (masked) mean first, so the term does not depend on the world scale
+    and cannot be lowered by shrinking the scene. A finite difference counts only where both of its
+    pixels are in ``mask``; with no valid pair the term is a differentiable 0.
+    """
+    valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
+    w = valid.to(depth.dtype)  # [H, W]
+    scale = _masked_mean(depth.abs(), w, w.sum().clamp_min(1.0)).clamp_min(eps)
+    d = depth / scale  # [H, W]
+    img = image.to(d.dtype)
+    dx_i = (img[:, 1:] - img[:, :-1]).abs().mean(-1)  # [H, W-1]
+    dy_i = (img[1:, :] - img[:-1, :]).abs().mean(-1)  # [H-1, W]
+    wx = (d[:, 1:] - d[:, :-1]).abs() * torch.exp(-gamma * dx_i)  # [H, W-1]
+    wy = (d[1:, :] - d[:-1, :]).abs() * torch.exp(-gamma * dy_i)  # [H-1, W]
+    vx = w[:, 1:] * w[:, :-1]  # [H, W-1]
+    vy = w[1:, :] * w[:-1, :]  # [H-1, W]
+    return (wx * vx).sum() / vx.sum().clamp_min(1.0) + (wy * vy).sum() / vy.sum().clamp_min(1.0)

@@ -1,0 +1,209 @@
+"""The medium field interface: extinction beta(x) and medium light L(x, v), shared by all views.
+
+A field maps world points and viewing directions to ``beta >= 0`` and ``L in [0, 1]^3``. The
+spatial representation (tri-plane, voxel grid, coordinate MLP, ...) is a registered *encoder*
+(kind ``medium``); the heads that turn features into beta and L are shared here so that every
+ablation changes one thing only (docs/medium.md).
+
+    beta(x)   = kappa * softplus(h_beta(f(x)))          kappa > 0 learnable, global
+    L(x, v)   = sigmoid(SH_v(h_L(f(x))))                SH order 0..2, or ``rgb``: sigmoid(h_L(f(x)))
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+
+from components.gaussians.sh import eval_sh, num_sh_bases
+from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.registry import REGISTRY
+
+
+@dataclass
+class FieldBounds:
+    """Axis-aligned box in which the field is resolved; coordinates are normalised to [-1, 1].
+
+    Points outside the box are *clamped* onto its surface: the medium continues with its boundary
+    value, which is what a smooth haze far away looks like and keeps the lookup finite for rays
+    that reach the far bound (docs/medium.md).
+    """
+
+    center: Tensor  # [3]
+    half_size: Tensor  # [3], > 0
+
+    def normalize(self, x: Tensor) -> Tensor:
+        """World points [..., 3] -> box coordinates in [-1, 1] (clamped)."""
+        c, h = self.center.to(x), self.half_size.to(x)
+        return ((x - c) / h).clamp(-1.0, 1.0)
+
+    def inside(self, x: Tensor) -> Tensor:  # [...] bool
+        c, h = self.center.to(x), self.half_size.to(x)
+        return ((x - c).abs() <= h).all(dim=-1)
+
+    @staticmethod
+    def from_scene(
+        camera_centers: Tensor,  # [C, 3]
+        points: Tensor | None = None,  # [M, 3]
+        quantile: float = 0.98,
+        margin: float = 0.1,
+    ) -> FieldBounds:
+        """The box holding every camera and the central ``quantile`` of the seed points, padded.
+
+        A few far-away SfM outliers would otherwise stretch the box and waste resolution; the
+        points beyond it are covered by clamping.
+        """
+        pts = [camera_centers.detach().float().reshape(-1, 3)]
+        if points is not None and len(points) > 0:
+            p = points.detach().float().reshape(-1, 3).to(pts[0].device)
+            if len(p) > 20:
+                lo = torch.quantile(p, 1.0 - quantile, dim=0)
+                hi = torch.quantile(p, quantile, dim=0)
+                p = p[((p >= lo) & (p <= hi)).all(dim=-1)]
+            pts.append(p)
+        allp = torch.cat(pts)
+        lo, hi = allp.min(0).values, allp.max(0).values
+        center = (lo + hi) / 2
+        half = (hi - lo) / 2
+        extent = float(half.max()) if float(half.max()) > 0 else 1.0
+        half = half.clamp_min(0.05 * extent) * (1.0 + margin) + 1e-6
+        return FieldBounds(center, half)
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {"center": self.center.tolist(), "half_size": self.half_size.tolist()}
+
+
+@dataclass
+class MediumSample:
+    """Medium quantities at P points."""
+
+    beta: Tensor  # [P] extinction (1 / scene unit), >= 0
+    light: Tensor  # [P, 3] medium light in [0, 1]
+
+
+@dataclass
+class MediumConfig(ComponentConfig):
+    """The view-shared medium field (``none`` turns the medium off: plain 3DGS)."""
+
+    backend: Annotated[str, RegistryChoice("medium")] = "none"
+    """Medium representation: ``triplane``, ``voxel``, ``mlp``, ``fourier``, ``constant``,
+    ``gaussian-bound`` or ``none``."""
+    resolution: int = 64
+    """Tri-plane side (three planes of resolution^2 cells); other grids match its feature budget."""
+    channels: int = 8
+    """Feature channels per plane cell (the tri-plane feature is 3 * channels wide)."""
+    hidden: int = 64
+    """Width of the two-layer heads (and of the coordinate MLPs)."""
+    light: Literal["sh", "rgb"] = "sh"
+    """Medium light: direction-dependent spherical harmonics, or a direction-free RGB colour
+    (the paper's "tri-plane RGB" ablation)."""
+    sh_degree: int = 1
+    """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
+    num_frequencies: int = 6
+    """Octaves of the ``fourier`` encoder (sin/cos of 2^k pi x)."""
+    lr: float = 1e-2
+    """Learning rate of the field's features and heads."""
+    kappa_lr: float = 1e-2
+    """Learning rate of log(kappa), the global extinction scale."""
+    init_beta: float = 0.1
+    """Initial extinction (1 / scene unit) everywhere; replaced by a dark-channel estimate when the
+    pipeline initialises the medium from data."""
+    init_light: tuple[float, float, float] = (0.7, 0.7, 0.7)
+    """Initial medium light (RGB); replaced by the dark-channel airlight estimate when available."""
+    tv_weight: float = 0.0
+    """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
+
+    def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
+        cls = REGISTRY.get("medium", self.backend)
+        return cls(
+            self, bounds if bounds is not None else FieldBounds(torch.zeros(3), torch.ones(3)), **kwargs
+        )
+
+
+class MediumField(nn.Module):
+    """Base of all medium fields. Subclasses set ``is_field`` and implement :meth:`forward`.
+
+    ``is_field`` False means the medium is not a 3D field evaluated along rays (``none``, or
+    ``gaussian-bound`` which the compositor renders through the rasterizer instead).
+    """
+
+    is_field: bool = True
+    has_medium: bool = True
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__()
+        self.config = config
+        self.register_buffer("bounds_center", bounds.center.detach().float().clone())
+        self.register_buffer("bounds_half", bounds.half_size.detach().float().clone())
+
+    @property
+    def bounds(self) -> FieldBounds:
+        return FieldBounds(self.bounds_center, self.bounds_half)
+
+    def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:  # x, dirs: [P, 3]
+        raise NotImplementedError
+
+    def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
+        """Trainable tensors by name with learning rates (names prefixed ``medium.``)."""
+        return {}
+
+    def regularizer(self) -> Tensor | None:
+        """An optional prior on the field's own parameters (e.g. TV on grids), already weighted."""
+        return None
+
+    @torch.no_grad()
+    def initialize(self, beta: float, light: Tensor) -> None:  # noqa: B027 - optional
+        """Set the field to a uniform extinction ``beta`` and light ``light`` [3] (data-driven init)."""
+
+
+class MediumHeads(nn.Module):
+    """Two-layer heads from a feature vector to (beta, L); the global kappa lives here too."""
+
+    def __init__(self, config: MediumConfig, in_dim: int) -> None:
+        super().__init__()
+        self.config = config
+        h = config.hidden
+        self.light_mode = config.light
+        self.sh_degree = int(config.sh_degree)
+        if self.light_mode == "sh" and not 0 <= self.sh_degree <= 2:
+            raise ValueError(f"medium SH degree must be 0, 1 or 2, got {self.sh_degree}")
+        n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
+        self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
+        self.light_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, n_light))
+        self.log_kappa = nn.Parameter(torch.zeros(()))
+        with torch.no_grad():  # near-uniform start: the last layers barely see the features
+            for head in (self.beta_head, self.light_head):
+                head[-1].weight.mul_(0.01)
+        self.initialize(config.init_beta, torch.tensor(config.init_light))
+
+    @torch.no_grad()
+    def initialize(self, beta: float, light: Tensor) -> None:
+        """Uniform start at ``beta`` and ``light``: the biases carry the values, kappa the scale."""
+        for head in (self.beta_head, self.light_head):
+            head[-1].bias.zero_()
+        # beta = kappa * softplus(0) = kappa * ln 2
+        self.log_kappa.fill_(math.log(max(beta, 1e-8) / math.log(2.0)))
+        logit = torch.logit(light.float().clamp(0.02, 0.98))
+        bias = self.light_head[-1].bias
+        if self.light_mode == "sh":
+            # DC basis value is C0 = 0.28209479; eval_sh adds nothing else at zero coefficients
+            bias.view(-1, 3)[0] = logit / 0.28209479177387814
+        else:
+            bias.copy_(logit)
+
+    @property
+    def kappa(self) -> Tensor:
+        return self.log_kappa.exp()
+
+    def forward(self, feat: Tensor, dirs: Tensor) -> MediumSample:
+        """feat: [P, F], dirs: [P, 3] unit -> beta [P], light [P, 3]."""
+        beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
+        raw = self.light_head(feat)
+        if self.light_mode == "sh":
+            coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
+            raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]
+        return MediumSample(beta=beta, light=torch.sigmoid(raw))

@@ -1,0 +1,228 @@
+"""Physical compositing I = J*T + S with the medium ray-marched on a coarse grid of rays.
+
+The medium is smooth, so evaluating it for every pixel wastes most of an iteration (~4 s at
+320x240x16 on 2 cores, against ~0.1 s for the rasterizer). Instead:
+
+1. Each pixel's end point is its own rendered z-depth blended with the far bound by the
+   pixel's alpha: ``z = alpha * D + (1 - alpha) * far`` (background rays cross the whole medium).
+2. Coarse rays are cast through the centres of ``stride x stride`` pixel blocks. Each marches
+   K equal intervals from the camera to ``z_far``, the largest end depth among the pixels that
+   use it (max-pooled, dilated by one block), evaluating the field at interval midpoints.
+3. Along every coarse ray the cumulative optical depth ``Tau_k`` and scattering ``S_k`` at the
+   interval boundaries form a profile in z. Each pixel reads the profiles of its four nearest
+   coarse rays *at its own depth*, finishing the partial interval exactly (piecewise-constant
+   medium), and blends them bilinearly. Depth edges therefore stay per-pixel sharp; only the
+   medium's lateral variation is sampled at the coarse spacing.
+
+With ``stride = 1`` every pixel marches its own ray to its own depth: the method's equations
+exactly (``T = exp(-sum beta Delta)``, ``S = sum T_k (1 - exp(-beta Delta)) L_k``).
+
+The depth the medium uses is detached by default: otherwise the photometric loss can move
+surfaces to change the haze on them, a second route for the scene-medium ambiguity; geometry is
+supervised by the depth prior instead (``depth_gradient`` turns the gradient on).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+from torch.nn import functional as F
+
+from components.data.cameras import Cameras
+from components.medium.base import MediumField
+
+
+@dataclass
+class CompositeConfig:
+    """How the medium is integrated along each pixel's ray."""
+
+    num_samples: int = 16
+    """K: medium samples per ray between the camera and the surface (far bound for background)."""
+    ray_stride: int | None = None
+    """The medium is marched along one ray per stride x stride pixel block (1 = every pixel);
+    None: the stride that gives about ``coarse_rays`` rays, so the medium's cost does not grow with
+    the image size (8 at 320x240, 3 at 128x96)."""
+    coarse_rays: int = 1200
+    """Target number of marched rays per view when ``ray_stride`` is None."""
+    far: float | None = None
+    """Far bound (scene units of camera z) for background pixels; None: the diagonal of the
+    medium's bounding box, so background rays cross the whole modelled medium."""
+    depth_gradient: bool = False
+    """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
+    t_floor: float = 1e-6
+    """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
+
+
+@dataclass
+class MediumRender:
+    """Per-pixel medium terms of one view."""
+
+    transmittance: Tensor  # [H, W, 1] in [t_floor, 1]
+    scattering: Tensor  # [H, W, 3] >= 0
+    end_depth: Tensor  # [H, W, 1] z-depth the rays were marched to
+
+
+def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
+    """Camera-space directions with unit z for pixel coordinates (pixel centres at +0.5).
+
+    xs: [w], ys: [h] -> world dirs [h, w, 3] (z-normalised: a point at camera z is o + z * d),
+    origin [3].
+    """
+    fx, fy, cx, cy = (float(v[0]) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
+    c2w = cam.camtoworlds[0].to(xs)  # [4, 4]
+    dx = (xs - cx) / fx  # [w]
+    dy = (ys - cy) / fy  # [h]
+    d_cam = torch.stack(
+        [
+            dx[None, :].expand(len(ys), -1),
+            dy[:, None].expand(-1, len(xs)),
+            torch.ones(len(ys), len(xs)).to(xs),
+        ],
+        dim=-1,
+    )  # [h, w, 3]
+    return d_cam @ c2w[:3, :3].T, c2w[:3, 3]
+
+
+def _bilinear_neighbours(
+    H: int, W: int, h: int, w: int, s: int, device: torch.device, dtype: torch.dtype
+) -> tuple[Tensor, Tensor]:
+    """For each pixel, the 4 nearest coarse rays (block centres) and bilinear weights: [4, H*W] each."""
+    px = (torch.arange(W, device=device, dtype=dtype) + 0.5) / s - 0.5  # [W] in coarse-ray units
+    py = (torch.arange(H, device=device, dtype=dtype) + 0.5) / s - 0.5  # [H]
+    x0 = px.floor().clamp(0, w - 1).long()
+    y0 = py.floor().clamp(0, h - 1).long()
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    wx = (px - x0.to(px)).clamp(0, 1)  # [W]
+    wy = (py - y0.to(py)).clamp(0, 1)  # [H]
+    rays, wgts = [], []
+    for yy, wyy in ((y0, 1 - wy), (y1, wy)):
+        for xx, wxx in ((x0, 1 - wx), (x1, wx)):
+            rays.append((yy[:, None] * w + xx[None, :]).reshape(-1))
+            wgts.append((wyy[:, None] * wxx[None, :]).reshape(-1))
+    return torch.stack(rays), torch.stack(wgts)
+
+
+class MediumCompositor:
+    """Computes T and S for a view from a medium field and the clean render's depth and alpha."""
+
+    def __init__(self, config: CompositeConfig) -> None:
+        if config.num_samples < 1:
+            raise ValueError(f"num_samples must be >= 1, got {config.num_samples}")
+        if config.ray_stride is not None and config.ray_stride < 1:
+            raise ValueError(f"ray_stride must be >= 1, got {config.ray_stride}")
+        if config.coarse_rays < 1:
+            raise ValueError(f"coarse_rays must be >= 1, got {config.coarse_rays}")
+        self.config = config
+
+    def stride_for(self, height: int, width: int) -> int:
+        """Block size of the coarse ray grid for an image of this size."""
+        if self.config.ray_stride is not None:
+            return self.config.ray_stride
+        return max(1, round(math.sqrt(height * width / self.config.coarse_rays)))
+
+    def far_bound(self, field: MediumField) -> float:
+        if self.config.far is not None:
+            return float(self.config.far)
+        return float(2.0 * field.bounds_half.norm())
+
+    def end_depth(self, depth: Tensor, alpha: Tensor, far: float) -> Tensor:
+        """Per-pixel z where the ray stops: the surface, blended to ``far`` by transparency."""
+        d = depth if self.config.depth_gradient else depth.detach()
+        a = alpha.detach().clamp(0.0, 1.0)
+        return (a * d.clamp(min=0.0, max=far) + (1.0 - a) * far).clamp_min(1e-6)  # [H, W, 1]
+
+    def __call__(self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor) -> MediumRender:
+        """camera: [1]; depth, alpha: [H, W, 1] from the clean render."""
+        H, W = depth.shape[:2]
+        far = self.far_bound(field)
+        z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
+        if not field.has_medium:
+            return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
+        s, K = self.stride_for(H, W), self.config.num_samples
+        h, w = math.ceil(H / s), math.ceil(W / s)
+        # --- coarse rays: block centres, marched to the farthest end depth they serve
+        zpad = F.pad(z[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
+        zfar = F.max_pool2d(zpad, s) if s > 1 else zpad  # [1, 1, h, w]
+        if s > 1:  # bilinear neighbours reach one block further
+            zfar = F.max_pool2d(zfar, 3, stride=1, padding=1)
+        zfar = zfar[0, 0]  # [h, w]
+        xs = (torch.arange(w, device=z.device, dtype=z.dtype) + 0.5) * s  # block centres, pixels
+        ys = (torch.arange(h, device=z.device, dtype=z.dtype) + 0.5) * s
+        if s == 1:
+            zfar = z.detach()
+        dirs, origin = _pixel_dirs(camera, xs, ys)  # [h, w, 3], [3]
+        step_len = dirs.norm(dim=-1)  # [h, w] path length per unit z
+        u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
+        zs = zfar[..., None] * u  # [h, w, K]
+        pts = origin + zs[..., None] * dirs[:, :, None, :]  # [h, w, K, 3]
+        unit = (dirs / step_len[..., None])[:, :, None, :].expand(-1, -1, K, -1)  # [h, w, K, 3]
+        sample = field(pts.reshape(-1, 3), unit.reshape(-1, 3))
+        beta = sample.beta.reshape(h * w, K)  # [R, K]
+        light = sample.light.reshape(h * w, K, 3)  # [R, K, 3]
+        dz = (zfar / K).reshape(-1)  # [R] interval length in z
+        tau = beta * (dz * step_len.reshape(-1))[:, None]  # [R, K] optical depth per interval
+        Tau = torch.cat([tau.new_zeros(h * w, 1), torch.cumsum(tau, dim=1)], dim=1)  # [R, K+1]
+        Tb = torch.exp(-Tau)  # [R, K+1] transmittance at interval boundaries
+        dS = (Tb[:, :-1] * -torch.expm1(-tau))[..., None] * light  # [R, K, 3]
+        Scum = torch.cat([dS.new_zeros(h * w, 1, 3), torch.cumsum(dS, dim=1)], dim=1)  # [R, K+1, 3]
+        # one table per boundary k: Tau_k, tau_k, T_k, S_k (3), L_k (3) -> a single gather per pixel
+        pad = tau.new_zeros(h * w, 1)
+        table = torch.cat(
+            [Tau[..., None], torch.cat([tau, pad], 1)[..., None], Tb[..., None], Scum,
+             torch.cat([light, light[:, :1]], 1)],
+            dim=-1,
+        ).reshape(h * w * (K + 1), 9)  # fmt: skip
+        # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
+        # rescaled to the pixel's own path length (exact for a homogeneous medium)
+        rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
+        pix_dirs, _ = _pixel_dirs(
+            camera,
+            torch.arange(W, device=z.device, dtype=z.dtype) + 0.5,
+            torch.arange(H, device=z.device, dtype=z.dtype) + 0.5,
+        )
+        pix_len = pix_dirs.norm(dim=-1).reshape(1, -1)  # [1, H*W] path length per unit z
+        ray_len = step_len.reshape(-1)[rays]  # [4, H*W]
+        zfar_r = zfar.reshape(-1)[rays]  # [4, H*W]
+        zq = z.reshape(1, -1)  # [1, H*W]
+        pos = (zq / zfar_r.clamp_min(1e-12)).clamp(0, 1) * K  # [4, H*W] position in intervals
+        k = pos.detach().floor().clamp(max=K - 1).long()
+        f = pos - k.to(pos)  # fraction of interval k covered
+        row = table.index_select(0, (rays * (K + 1) + k).reshape(-1)).reshape(4, H * W, 9)
+        Tau_k, tau_k, T_k, S_k, L_k = row[..., 0], row[..., 1], row[..., 2], row[..., 3:6], row[..., 6:9]
+        t_ray = Tau_k + f * tau_k  # [4, H*W] optical depth along the coarse ray to z
+        s_ray = S_k + (T_k * -torch.expm1(-f * tau_k))[..., None] * L_k  # [4, H*W, 3]
+        r = pix_len / ray_len  # ~1: obliquity of the pixel vs the coarse ray
+        t_pix = t_ray * r
+        # S is a light-weighted scattered fraction 1 - T: keep the weighting, rescale the fraction
+        den = -torch.expm1(-t_ray)
+        frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
+        tau_p = (wgt * t_pix).sum(0)  # [H*W]
+        S_p = ((wgt * frac)[..., None] * s_ray).sum(0)  # [H*W, 3]
+        T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
+        return MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+
+
+def homogeneous_along_rays(
+    beta: Tensor, light: Tensor, camera: Cameras, end_depth: Tensor, t_floor: float = 1e-6
+) -> MediumRender:
+    """Per-pixel homogeneous medium: beta [H, W], light [H, W, 3], end_depth [H, W, 1] (z).
+
+    Used by media that give one value per pixel (``gaussian-bound``): T = exp(-beta * path),
+    S = L (1 - T), path = z * |d| for the pixel's ray direction d with unit z.
+    """
+    H, W = beta.shape
+    xs = torch.arange(W, device=beta.device, dtype=beta.dtype) + 0.5
+    ys = torch.arange(H, device=beta.device, dtype=beta.dtype) + 0.5
+    dirs, _ = _pixel_dirs(camera, xs, ys)  # [H, W, 3]
+    path = end_depth[..., 0] * dirs.norm(dim=-1)  # [H, W]
+    tau = beta * path
+    T = torch.exp(-tau).clamp_min(t_floor)
+    return MediumRender(T[..., None], light * -torch.expm1(-tau)[..., None], end_depth)
+
+
+def composite(clean: Tensor, medium: MediumRender) -> Tensor:
+    """Hazy image I = J*T + S: clean [H, W, 3] -> [H, W, 3]."""
+    return clean * medium.transmittance + medium.scattering

@@ -1,0 +1,170 @@
+"""Registered medium field backends (kind ``medium``): encoders from world points to features.
+
+Every backend shares :class:`~components.medium.base.MediumHeads`, so the ablations in the paper
+(tri-plane vs voxel vs coordinate MLP vs Fourier MLP vs constant) change the spatial encoder only.
+Grid backends share one feature budget: the voxel grid has as many cells x channels as the three
+planes together, so the comparison is about the factorisation, not the parameter count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+
+from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumHeads, MediumSample
+from tridehaze_plugin.registry import register
+
+GRID_INIT_STD = 0.1
+"""Std of the random grid / feature init: enough to break symmetry, small next to the heads' scale."""
+
+
+class HeadedField(MediumField):
+    """A field made of an encoder ``encode(x) -> [P, F]`` followed by the shared heads."""
+
+    feature_dim: int
+
+    def _build_heads(self) -> None:
+        self.heads = MediumHeads(self.config, self.feature_dim)
+
+    def encode(self, x: Tensor) -> Tensor:  # x: [P, 3] world -> [P, F]
+        raise NotImplementedError
+
+    def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:
+        return self.heads(self.encode(x), dirs)
+
+    def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
+        """One entry per parameter (one optimizer each); only log(kappa) has its own lr."""
+        cfg = self.config
+        return {
+            f"medium.{name}": (p, cfg.kappa_lr if name.endswith("log_kappa") else cfg.lr)
+            for name, p in self.named_parameters()
+        }
+
+    @torch.no_grad()
+    def initialize(self, beta: float, light: Tensor) -> None:
+        """Uniform start; the heads' near-zero last layers hide the random feature variation."""
+        self.heads.initialize(beta, light)
+
+
+def _tv(grid: Tensor, dims: tuple[int, ...]) -> Tensor:
+    """Mean squared finite difference along ``dims`` (smooth L2 TV, as in K-Planes / Plenoxels)."""
+    return torch.stack([(grid.diff(dim=d) ** 2).mean() for d in dims]).sum()
+
+
+class TriplaneField(HeadedField):
+    """Three axis-aligned feature planes (xy, xz, yz), bilinear lookup, features concatenated."""
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        r, c = int(config.resolution), int(config.channels)
+        self.features = nn.Parameter(torch.randn(3, c, r, r) * GRID_INIT_STD)  # [3, C, R, R]
+        self.feature_dim = 3 * c
+        self._build_heads()
+
+    def encode(self, x: Tensor) -> Tensor:
+        n = self.bounds.normalize(x)  # [P, 3] in [-1, 1]
+        # grid_sample reads (u, v) = (width, height): plane i is indexed by the coordinate pair below
+        uv = torch.stack([n[:, [0, 1]], n[:, [0, 2]], n[:, [1, 2]]])  # [3, P, 2]
+        feat = F.grid_sample(self.features, uv.unsqueeze(1), mode="bilinear", align_corners=True)
+        return feat[:, :, 0].permute(2, 0, 1).reshape(-1, self.feature_dim)  # [3, C, 1, P] -> [P, 3C]
+
+    def regularizer(self) -> Tensor | None:
+        w = self.config.tv_weight
+        return w * _tv(self.features, (2, 3)) if w > 0 else None
+
+
+class VoxelField(HeadedField):
+    """One dense 3D grid with the tri-plane's feature budget, trilinear lookup.
+
+    Side ``G = round((3 R^2)^(1/3))`` at the same C channels (23^3 x 8 for R=64, C=8): the grid
+    keeps the spatial resolution the budget allows, so its features are C wide (not 3C).
+    """
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        r, c = int(config.resolution), int(config.channels)
+        g = max(2, round((3 * r * r) ** (1.0 / 3.0)))
+        self.features = nn.Parameter(torch.randn(1, c, g, g, g) * GRID_INIT_STD)  # [1, C, G, G, G]
+        self.feature_dim = c
+        self._build_heads()
+
+    def encode(self, x: Tensor) -> Tensor:
+        n = self.bounds.normalize(x)  # [P, 3]; grid_sample's (x, y, z) index (W, H, D)
+        feat = F.grid_sample(self.features, n.view(1, 1, 1, -1, 3), mode="bilinear", align_corners=True)
+        return feat[0, :, 0, 0].t()  # [1, C, 1, 1, P] -> [P, C]
+
+    def regularizer(self) -> Tensor | None:
+        w = self.config.tv_weight
+        return w * _tv(self.features, (2, 3, 4)) if w > 0 else None
+
+
+def _coord_mlp(in_dim: int, hidden: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
+
+
+class MLPField(HeadedField):
+    """Coordinate MLP on the normalised position: smooth by construction, no grid."""
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        self.encoder = _coord_mlp(3, int(config.hidden))
+        self.feature_dim = int(config.hidden)
+        self._build_heads()
+
+    def encode(self, x: Tensor) -> Tensor:
+        return self.encoder(self.bounds.normalize(x))  # [P, hidden]
+
+
+class FourierField(HeadedField):
+    """Coordinate MLP on ``[x, sin(2^k pi x), cos(2^k pi x)]``, k < num_frequencies (NeRF-style)."""
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        self.num_frequencies = int(config.num_frequencies)
+        self.register_buffer(
+            "freqs",
+            math.pi * 2.0 ** torch.arange(self.num_frequencies, dtype=torch.float32),
+            persistent=False,
+        )
+        self.encoder = _coord_mlp(3 * (1 + 2 * self.num_frequencies), int(config.hidden))
+        self.feature_dim = int(config.hidden)
+        self._build_heads()
+
+    def encode(self, x: Tensor) -> Tensor:
+        n = self.bounds.normalize(x)  # [P, 3]
+        ang = (n.unsqueeze(-1) * self.freqs.to(n)).flatten(1)  # [P, 3L]
+        return self.encoder(torch.cat([n, ang.sin(), ang.cos()], dim=-1))  # [P, hidden]
+
+
+class ConstantField(HeadedField):
+    """One global feature vector: a homogeneous medium (global beta, light varies with v only)."""
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        self.feature_dim = 3 * int(config.channels)
+        self.features = nn.Parameter(torch.randn(self.feature_dim) * GRID_INIT_STD)  # [F]
+        self._build_heads()
+
+    def encode(self, x: Tensor) -> Tensor:
+        return self.features.to(x).expand(x.shape[0], -1)  # [P, F]
+
+
+class NoMedium(MediumField):
+    """No medium: zero extinction and zero light (plain 3DGS)."""
+
+    is_field = False
+    has_medium = False
+
+    def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:
+        return MediumSample(beta=x.new_zeros(x.shape[0]), light=x.new_zeros(x.shape[0], 3))
+
+
+register("medium", "triplane", TriplaneField)
+register("medium", "voxel", VoxelField)
+register("medium", "mlp", MLPField)
+register("medium", "fourier", FourierField)
+register("medium", "constant", ConstantField)
+register("medium", "none", NoMedium)

@@ -1,0 +1,72 @@
+"""``gaussian-bound``: the medium carried by the Gaussians themselves (the paper's coupled baseline).
+
+Each Gaussian holds a raw extinction and an RGB medium light; they are alpha-blended like colours
+into per-pixel values (a second rasterizer pass with the same geometry), and the haze along the
+pixel's ray is taken as homogeneous with those values: T = exp(-beta d), S = L (1 - T). Where no
+Gaussian covers a pixel a learnable background medium is used. Scene and medium share one set of
+primitives, which is exactly the coupling Tri-DehazeGS removes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+from torch.nn import functional as F
+
+from components.gaussians.model import GaussianModel
+from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumSample
+from tridehaze_plugin.registry import register
+
+ATTRIBUTE = "medium"
+"""Name of the per-Gaussian attribute ([N, 4]: raw beta, light logits) on the Gaussian model."""
+
+
+class GaussianBoundMedium(MediumField):
+    is_field = False
+    renders_with_gaussians = True
+
+    def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
+        super().__init__(config, bounds)
+        self.log_kappa = nn.Parameter(torch.zeros(()))
+        self.background = nn.Parameter(torch.zeros(4))  # raw beta, light logits where no Gaussian is
+        self._init = (config.init_beta, torch.tensor(config.init_light, dtype=torch.float32))
+        self.initialize(*self._init)
+
+    @torch.no_grad()
+    def initialize(self, beta: float, light: Tensor) -> None:
+        self.log_kappa.fill_(math.log(max(beta, 1e-8) / math.log(2.0)))  # softplus(0) = ln 2
+        self._init = (beta, light.float().cpu())
+        self.background.copy_(self._raw_init())
+
+    def _raw_init(self) -> Tensor:  # [4]
+        light = torch.logit(self._init[1].clamp(0.02, 0.98))
+        return torch.cat([torch.zeros(1), light])
+
+    def attach(self, model: GaussianModel) -> None:
+        """Give every Gaussian its medium attribute (cloned / pruned with it from then on)."""
+        values = self._raw_init().to(model.means).expand(model.num_gaussians, 4).clone()
+        model.add_attribute(ATTRIBUTE, values, self.config.lr)
+
+    def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
+        return {
+            "medium.kappa": (self.log_kappa, self.config.kappa_lr),
+            "medium.background": (self.background, self.config.lr),
+        }
+
+    def pixel_medium(self, blended: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
+        """blended [H, W, 4] alpha-weighted raw values, alpha [H, W, 1] -> beta [H, W], light [H, W, 3]."""
+        a = alpha.clamp_min(1e-6)
+        raw = blended / a + (1 - alpha) * self.background  # background fills uncovered pixels
+        raw = torch.where(alpha > 1e-4, raw, self.background.expand_as(raw))
+        beta = self.log_kappa.exp() * F.softplus(raw[..., 0])
+        return beta, torch.sigmoid(raw[..., 1:])
+
+    def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:
+        """Only the background medium is defined away from the Gaussians."""
+        raw = self.background.expand(x.shape[0], 4)
+        return MediumSample(self.log_kappa.exp() * F.softplus(raw[:, 0]), torch.sigmoid(raw[:, 1:]))
+
+
+register("medium", "gaussian-bound", GaussianBoundMedium)

@@ -1,0 +1,155 @@
+"""Per-view priors computed once from the hazy inputs: dark-channel transmittance, pseudo-depth,
+and the data-driven start of the medium (airlight, extinction, dehazed seed colours).
+
+No network is involved: the paper's monocular depth model cannot be downloaded here, so the
+pseudo-depth comes from files, the dark channel, the SfM points or a short haze-agnostic warm-up
+(docs/medium.md compares them on generated scenes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from components.data.cameras import Cameras
+from components.losses.dcp import DCPResult, estimate_dcp
+from components.losses.depth_priors import depth_from_dcp, depth_from_file, depth_from_sfm
+from pipelines.datamanager import DataManager
+
+DEPTH_PRIORS = ("auto", "files", "dcp", "sfm", "warmup", "none")
+
+
+@dataclass
+class ViewPrior:
+    """What the losses compare against for one training view (all on the training device)."""
+
+    t_dcp: Tensor | None = None  # [H, W] dark-channel transmittance (None: not computed)
+    depth: Tensor | None = None  # [H, W] pseudo-depth (relative), None: no depth loss on this view
+    depth_valid: Tensor | None = None  # [H, W] bool
+
+
+@dataclass
+class MediumEstimate:
+    """A global start for the medium from the dark channel and the seed points."""
+
+    airlight: Tensor  # [3]
+    beta: float | None  # 1 / scene unit; None when there are no seed points to measure it with
+
+
+def dcp_per_view(dm: DataManager, indices: list[int]) -> dict[int, DCPResult]:
+    return {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
+
+
+def _project(points: Tensor, cam: Cameras) -> tuple[Tensor, Tensor, Tensor]:
+    """Pixel coordinates [M, 2], camera z [M] and in-image mask [M] of world points in camera [1]."""
+    vm = cam.viewmats()[0].to(points)  # [4, 4]
+    pc = points @ vm[:3, :3].T + vm[:3, 3]  # [M, 3]
+    z = pc[:, 2]
+    zs = z.clamp_min(1e-6)
+    u = float(cam.fx[0]) * pc[:, 0] / zs + float(cam.cx[0])
+    v = float(cam.fy[0]) * pc[:, 1] / zs + float(cam.cy[0])
+    ok = (z > 1e-3) & (u >= 0) & (v >= 0) & (u < int(cam.width[0])) & (v < int(cam.height[0]))
+    return torch.stack([u, v], -1), z, ok
+
+
+def estimate_medium(
+    dm: DataManager, dcp: dict[int, DCPResult], points: Tensor | None, max_views: int = 16
+) -> MediumEstimate:
+    """Airlight: median of the per-view dark-channel airlights. Extinction: median over seed points
+    seen in training views of -ln(T_dcp) / path length, which ties the medium's scale to the
+    scene's units (the dark channel alone knows T, not distance)."""
+    airlight = torch.from_numpy(np.median(np.stack([r.airlight for r in dcp.values()]), axis=0)).float()
+    if points is None or len(points) == 0:
+        return MediumEstimate(airlight, None)
+    ratios = []
+    for i in list(dcp)[:max_views]:
+        cam = dm.camera(i).to("cpu")
+        uv, z, ok = _project(points.detach().float().cpu(), cam)
+        if int(ok.sum()) == 0:
+            continue
+        t = torch.from_numpy(dcp[i].transmittance)  # [H, W]
+        px = uv[ok].long()
+        t_at = t[px[:, 1], px[:, 0]].clamp(1e-3, 0.999)
+        ray = torch.stack(
+            [
+                (uv[ok, 0] - float(cam.cx[0])) / float(cam.fx[0]),
+                (uv[ok, 1] - float(cam.cy[0])) / float(cam.fy[0]),
+            ],
+            -1,
+        )
+        path = z[ok] * torch.sqrt(1 + (ray**2).sum(-1))  # [m] distance along the ray
+        ratios.append(-torch.log(t_at) / path.clamp_min(1e-6))
+    if not ratios:
+        return MediumEstimate(airlight, None)
+    return MediumEstimate(airlight, float(torch.cat(ratios).median()))
+
+
+def dehaze_point_colors(
+    points: Tensor, colors: Tensor, centers: Tensor, est: MediumEstimate, t_floor: float = 0.2
+) -> Tensor:
+    """Seed colours with the estimated haze taken out: J = (c - A (1 - T)) / T, T from the nearest
+    camera. SfM colours of hazy photos carry the haze; starting the Gaussians hazy makes the
+    medium's job (and the ambiguity) harder."""
+    if est.beta is None:
+        return colors
+    c = colors.float()
+    if c.max() > 1.0:
+        c = c / 255.0
+    dist = torch.cdist(points.float(), centers.float().to(points.device)).min(dim=1).values  # [M]
+    T = torch.exp(-est.beta * dist).clamp_min(t_floor)[:, None]
+    A = est.airlight.to(c)
+    return ((c - A * (1 - T)) / T).clamp(0.0, 1.0)
+
+
+def build_view_priors(
+    dm: DataManager,
+    indices: list[int],
+    dcp: dict[int, DCPResult],
+    source: str,
+    points: Tensor | None,
+    warmup_depths: dict[int, Tensor] | None = None,
+) -> dict[int, ViewPrior]:
+    """One :class:`ViewPrior` per training view for the chosen pseudo-depth ``source``."""
+    out: dict[int, ViewPrior] = {}
+    for i in indices:
+        prior = ViewPrior()
+        if i in dcp:
+            prior.t_dcp = torch.from_numpy(dcp[i].transmittance).float().to(dm.device)
+        cam = dm.camera(i)
+        H, W = int(cam.height[0]), int(cam.width[0])
+        d = valid = None
+        if source == "files" and dm.scene.depth_paths[i] is not None:
+            d, valid = depth_from_file(dm.scene.depth_paths[i], H, W)
+        elif source == "dcp":
+            d, valid = depth_from_dcp(dm.image(i).cpu().numpy())
+        elif source == "sfm" and points is not None and len(points) > 0:
+            cpu = cam.to("cpu")
+            d, valid = depth_from_sfm(
+                points.float().cpu(), cpu.viewmats()[0].float(), cpu.Ks()[0].float(), H, W
+            )
+        elif source == "warmup" and warmup_depths is not None:
+            d = warmup_depths[i]
+            valid = torch.isfinite(d) & (d > 0)
+        if d is not None:
+            prior.depth = torch.as_tensor(d).float().to(dm.device)
+            prior.depth_valid = torch.as_tensor(valid).bool().to(dm.device)
+        out[i] = prior
+    return out
+
+
+def resolve_depth_prior(source: str, dm: DataManager, default: str) -> str:
+    """``auto``: the dataset's depth files when every training view has one, else ``default``."""
+    if source != "auto":
+        return source
+    if all(dm.scene.depth_paths[i] is not None for i in dm.train_indices):
+        return "files"
+    return default
+
+
+def scaled_step(step: int | None, fraction: float, max_steps: int) -> int:
+    """An explicit step, or ``fraction`` of the run (the paper's 3000 of 15000 is 0.2)."""
+    return int(step) if step is not None else int(math.floor(fraction * max_steps + 0.5))

@@ -1,0 +1,96 @@
+"""Pearson depth loss and edge-aware smoothness: invariances, masking, gradients."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
+
+
+@pytest.fixture
+def prior() -> torch.Tensor:
+    g = torch.Generator().manual_seed(0)
+    return torch.rand(24, 32, generator=g) * 10 + 1  # [H, W]
+
+
+@pytest.mark.parametrize("a,b", [(1.0, 0.0), (3.0, -2.0), (0.01, 100.0)])
+def test_pearson_zero_for_positive_affine(prior, a, b):
+    assert pearson_depth_loss(a * prior + b, prior).item() == pytest.approx(0.0, abs=1e-5)
+
+
+def test_pearson_two_for_negative_affine(prior):
+    assert pearson_depth_loss(-2.0 * prior + 5.0, prior).item() == pytest.approx(2.0, abs=1e-5)
+
+
+def test_pearson_invariant_to_scale_and_shift_of_either_input(prior):
+    pred = prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(1)) * 3
+    base = pearson_depth_loss(pred, prior)
+    assert 0.05 < base.item() < 1.0
+    assert pearson_depth_loss(7 * pred + 3, prior).item() == pytest.approx(base.item(), abs=1e-5)
+    assert pearson_depth_loss(pred, 0.1 * prior - 4).item() == pytest.approx(base.item(), abs=1e-5)
+
+
+def test_pearson_ignores_masked_and_nonfinite_pixels(prior):
+    pred = prior.clone()
+    mask = torch.ones_like(prior, dtype=torch.bool)
+    mask[:, :8] = False
+    pred[:, :8] = -1000.0  # garbage where masked
+    noisy_prior = prior.clone()
+    noisy_prior[0, 10] = float("nan")  # ignored without a mask entry
+    assert pearson_depth_loss(pred, noisy_prior, mask).item() == pytest.approx(0.0, abs=1e-5)
+    assert pearson_depth_loss(pred, noisy_prior).item() > 0.5
+
+
+def test_pearson_gradient_finite_and_nonzero(prior):
+    pred = (prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(2))).requires_grad_()
+    pearson_depth_loss(pred, prior).backward()
+    assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+
+
+def test_pearson_degenerate_inputs_are_finite(prior):
+    const = torch.full_like(prior, 3.0, requires_grad=True)
+    loss = pearson_depth_loss(const, prior)
+    loss.backward()
+    assert loss.item() == pytest.approx(1.0, abs=1e-4)
+    assert torch.isfinite(const.grad).all()
+
+    pred = prior.clone().requires_grad_()
+    few = torch.zeros_like(prior, dtype=torch.bool)
+    few[0, :5] = True  # too few pixels -> 0, still differentiable
+    loss = pearson_depth_loss(pred, prior, few)
+    loss.backward()
+    assert loss.item() == 0.0 and torch.isfinite(pred.grad).all()
+
+
+def _step(h: int = 16, w: int = 16) -> torch.Tensor:
+    d = torch.ones(h, w)
+    d[:, w // 2 :] = 2.0  # a vertical depth step
+    return d
+
+
+def test_smoothness_zero_for_constant_depth():
+    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(3))
+    assert edge_aware_smoothness(torch.full((16, 16), 4.0), img).item() == pytest.approx(0.0)
+
+
+def test_smoothness_cheaper_across_image_edge():
+    flat = torch.full((16, 16, 3), 0.5)
+    edge = flat.clone()
+    edge[:, 8:] = 1.0  # image edge at the same column as the depth step
+    d = _step()
+    assert edge_aware_smoothness(d, edge).item() < 0.1 * edge_aware_smoothness(d, flat).item()
+
+
+def test_smoothness_scale_invariant_masked_and_differentiable():
+    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(4))
+    d = _step() + torch.rand(16, 16, generator=torch.Generator().manual_seed(5))
+    base = edge_aware_smoothness(d, img)
+    assert edge_aware_smoothness(10 * d, img).item() == pytest.approx(base.item(), rel=1e-5)
+    mask = torch.zeros(16, 16, dtype=torch.bool)
+    mask[:, :8] = True
+    masked = edge_aware_smoothness(_step(), torch.full((16, 16, 3), 0.5), mask)
+    assert masked.item() == pytest.approx(0.0)  # the step lies outside the mask
+    dg = d.clone().requires_grad_()
+    edge_aware_smoothness(dg, img).backward()
+    assert torch.isfinite(dg.grad).all() and dg.grad.abs().sum() > 0
