@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/td-train vanilla-gs --max-steps 1500 --output-dir outputs
+	$(BIN)/td-train tri-dehaze --max-steps 1500 --output-dir outputs
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
