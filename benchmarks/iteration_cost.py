@@ -9,6 +9,11 @@ reported. The Tri-DehazeGS variants differ in how many rays the medium is marche
 
     python benchmarks/iteration_cost.py                       # 320x240, ~50k Gaussians
     python benchmarks/iteration_cost.py --width 160 --height 120 --points 10000
+    python benchmarks/iteration_cost.py --quality-run RUN/config.yml   # + rendering error per stride
+
+With ``--quality-run`` a trained Tri-DehazeGS run is also re-rendered on its test views with each
+ray stride: the transmittance and hazy composite are compared with the every-pixel march (stride 1)
+and the composite with the hazy inputs, i.e. what the coarse grid costs in accuracy.
 
 Writes ``benchmarks/results/iteration_cost.{json,csv,png}``.
 """
@@ -82,6 +87,60 @@ def iteration(pipe, opt, step: int) -> float:
     return time.perf_counter() - t0
 
 
+def stride_quality(config_path: Path, strides: list[int | None]) -> list[dict]:
+    """Render a trained run's test views with each stride; errors against stride 1 and the inputs."""
+    from pipelines.metrics import psnr
+    from pipelines.run_loader import load_run
+
+    run = load_run(config_path)
+    comp = run.pipeline.compositor
+    dm = run.datamanager
+    views = dm.test_indices or dm.train_indices[:3]
+    renders: dict[int | None, list[dict]] = {}
+    with torch.no_grad():
+        for stride in [1, *strides]:
+            comp.config.ray_stride = stride
+            renders[stride] = [run.pipeline.render(dm.camera(i)) for i in views]
+    rows = []
+    H, W = int(dm.camera(views[0]).height[0]), int(dm.camera(views[0]).width[0])
+    for stride in strides:
+        comp.config.ray_stride = stride
+        effective = comp.stride_for(H, W)
+        t_mean = sum(
+            float((a["transmittance"] - b["transmittance"]).abs().mean())
+            for a, b in zip(renders[stride], renders[1], strict=True)
+        ) / len(views)
+        t_err = max(
+            float((a["transmittance"] - b["transmittance"]).abs().max())
+            for a, b in zip(renders[stride], renders[1], strict=True)
+        )
+        rows.append(
+            {
+                "ray_stride": "auto" if stride is None else stride,
+                "effective_stride": effective,
+                "mean_abs_T_vs_stride1": round(t_mean, 5),
+                "max_abs_T_vs_stride1": round(t_err, 5),
+                "hazy_psnr_vs_stride1": round(
+                    sum(
+                        float(psnr(a["hazy"], b["hazy"]))
+                        for a, b in zip(renders[stride], renders[1], strict=True)
+                    )
+                    / len(views),
+                    2,
+                ),
+                "reconstruction_psnr": round(
+                    sum(
+                        float(psnr(a["hazy"], dm.image(i)))
+                        for a, i in zip(renders[stride], views, strict=True)
+                    )
+                    / len(views),
+                    3,
+                ),
+            }
+        )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=320)
@@ -95,6 +154,7 @@ def main() -> None:
     )
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--out", type=Path, default=RESULTS / "iteration_cost")
+    ap.add_argument("--quality-run", type=Path, default=None, help="trained tri-dehaze RUN/config.yml")
     args = ap.parse_args()
     load_all()
     with tempfile.TemporaryDirectory() as tmp:
@@ -143,8 +203,24 @@ def main() -> None:
         print(
             f"{row['variant']:38s} {row['median_s']:9.4f} {row['min_s']:8.4f} {row['ratio_to_vanilla']:10.2f}"
         )
+    quality = []
+    if args.quality_run is not None:
+        quality = stride_quality(args.quality_run, [None, 2, 4, 8])
+        print(f"\nrendering error of the coarse grid on {args.quality_run.parent.name} (test views):")
+        print(
+            f"{'ray stride':>12s} {'mean|T - T_1|':>14s} {'max|T - T_1|':>13s} {'PSNR vs stride 1':>17s} "
+            f"{'recon PSNR':>11s}"
+        )
+        for q in quality:
+            label = f"{q['ray_stride']} ({q['effective_stride']})"
+            print(
+                f"{label:>12s} {q['mean_abs_T_vs_stride1']:14.5f} {q['max_abs_T_vs_stride1']:13.5f} {q['hazy_psnr_vs_stride1']:17.2f} "
+                f"{q['reconstruction_psnr']:11.3f}"
+            )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    args.out.with_suffix(".json").write_text(
+        json.dumps({"meta": meta, "rows": rows, "quality": quality}, indent=2)
+    )
     with args.out.with_suffix(".csv").open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()

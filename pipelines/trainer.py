@@ -79,6 +79,8 @@ class Trainer:
             torch.set_num_threads(cfg.threads)
         self.device = resolve_device(cfg.device)
         seed_everything(cfg.seed)
+        if cfg.dataset.data is not None:  # config.yml must reload from any working directory
+            cfg.dataset.data = cfg.dataset.data.expanduser().resolve()
         scene = load_scene(cfg.dataset)
         if not scene.train_indices:
             raise ConfigError("the dataset has no training views", where=str(scene.root))

@@ -156,5 +156,7 @@ def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path):
     assert read_image(out / "clean" / "v01.png").shape == (H, W, 3)
     depth = np.load(out / "depth" / "v01.npy")
     assert depth.shape == (H, W) and np.isfinite(depth).all() and depth.max() > 0
-    with pytest.raises(UserError, match="this method renders: clean, hazy, transmittance, scattering, depth, alpha"):
+    with pytest.raises(
+        UserError, match="this method renders: clean, hazy, transmittance, scattering, depth, alpha"
+    ):
         render_main(["--load-config", str(result.run_dir / "config.yml"), "--outputs", "sky"])

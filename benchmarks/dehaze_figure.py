@@ -1,0 +1,83 @@
+"""Side-by-side figure of finished runs on generated scenes: hazy input | each run's clean render |
+haze-free reference | the last run's transmittance, one row per scene (first test view).
+
+    python benchmarks/dehaze_figure.py --runs RUN_A/config.yml RUN_B/config.yml ... --output docs/images/x.png
+
+Runs are grouped by scene (their dataset folder) and labelled by method; the restoration PSNR
+of the shown view is printed on each clean render.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from pipelines.metrics import psnr  # noqa: E402
+from pipelines.run_loader import load_run  # noqa: E402
+
+
+def _u8(x: torch.Tensor) -> np.ndarray:
+    x = x.detach().cpu().float()
+    if x.shape[-1] == 1:
+        import cv2
+
+        g = (x[..., 0].clamp(0, 1).numpy() * 255).astype(np.uint8)
+        return cv2.applyColorMap(g, cv2.COLORMAP_VIRIDIS)[..., ::-1]
+    return (x.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=Path, nargs="+", required=True)
+    ap.add_argument("--output", type=Path, required=True)
+    args = ap.parse_args()
+    import cv2
+
+    torch.set_grad_enabled(False)
+    by_scene: dict[str, list] = defaultdict(list)
+    for cfg in args.runs:
+        run = load_run(cfg)
+        by_scene[str(run.config.dataset.data)].append(run)
+    rows, header = [], None
+    for scene, runs in by_scene.items():
+        dm = runs[0].datamanager
+        idx = dm.test_indices[0]
+        clean_ref = dm.clean_image(idx)
+        tiles = [("hazy input", _u8(dm.image(idx)), float(psnr(dm.image(idx), clean_ref)))]
+        T = None
+        for run in runs:
+            out = run.pipeline.render(run.datamanager.camera(idx))
+            tiles.append((run.config.method_name, _u8(out["clean"]), float(psnr(out["clean"], clean_ref))))
+            if run.pipeline.medium.has_medium:
+                T = out["transmittance"]
+        tiles.append(("clean reference", _u8(clean_ref), None))
+        if T is not None:
+            tiles.append(("transmittance", _u8(T), None))
+        imgs = []
+        for label, img, p in tiles:
+            img = cv2.resize(np.ascontiguousarray(img), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+            text = f"{label}" + (f" {p:.1f} dB" if p is not None else "")
+            cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
+            cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+            imgs.append(img)
+        rows.append(np.concatenate(imgs, axis=1))
+        header = Path(scene).name
+        print(header, " | ".join(f"{lab}: {p:.2f}" for lab, _, p in tiles if p is not None))
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(args.output), np.concatenate(rows, axis=0)[..., ::-1])
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,386 @@
+"""Structure-from-motion with pycolmap on the CPU: photos -> a COLMAP dataset ``td-train`` reads.
+
+Stages (each reported to a :class:`Reporter`, so a command-line tool can draw progress bars):
+
+1. ``prepare``: every photo is decoded once (a corrupt file is a one-line error before any work)
+   and, with ``enhance`` other than ``none``, a contrast-enhanced copy of the same size is written
+   for matching (``components.sfm.enhance``).
+2. ``features``: the photos are imported into a COLMAP database from the *originals* (so the camera
+   sizes and any EXIF focal length come from them), then SIFT runs on the matching copies, at most
+   ``max_image_size`` pixels on the longest side (keypoints are stored in original pixels).
+3. ``matching``: exhaustive (every pair) or sequential (each photo with the next ``overlap`` ones
+   and, quadratically, 2^k further) pairs, matched in chunks with geometric verification.
+4. ``mapping``: incremental mapping; the model with the most registered images is kept.
+5. ``undistort``: the originals are undistorted with the kept model (COLMAP's undistorter);
+   the result is ``images/`` + ``sparse/0/`` (PINHOLE cameras), the layout of our COLMAP parser.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from components.data.images import IMAGE_SUFFIXES, is_image_file, read_image, write_bytes_atomic
+from components.sfm.enhance import ENHANCE_CHOICES, enhance_image
+from tridehaze_plugin.errors import DataError, UserError
+
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+"""Camera models the mapper may estimate (all understood by the COLMAP parser before undistortion)."""
+
+EXHAUSTIVE_MAX_IMAGES = 200
+"""``--matcher auto`` matches every pair up to this many photos, sequentially beyond (and for videos)."""
+
+
+@dataclass
+class SfmOptions:
+    """How photos are matched and mapped."""
+
+    matcher: Literal["auto", "exhaustive", "sequential"] = "auto"
+    """Pairs to match: every pair, or neighbours in name order (ordered captures, videos).
+    ``auto``: exhaustive up to 200 photos, sequential beyond."""
+    enhance: Literal["none", "clahe", "dcp"] = "none"
+    """Match on contrast-enhanced copies (CLAHE, or dark-channel dehazing); the dataset keeps the
+    original photos."""
+    max_image_size: int = 1600
+    """Longest side (pixels) at which features are extracted; larger photos are shrunk for SIFT
+    only (keypoints and the dataset stay at full resolution)."""
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
+    """Camera model estimated by the mapper (undistorted to PINHOLE at the end)."""
+    camera_mode: Literal["auto", "single", "per-image"] = "auto"
+    """Shared intrinsics: ``auto`` (one camera per image size and EXIF), ``single`` (one camera for
+    all photos, e.g. a video), ``per-image``."""
+    max_num_features: int = 8192
+    """SIFT features per photo."""
+    sequential_overlap: int = 10
+    """Sequential matching: each photo is matched with this many following ones."""
+    threads: int = 2
+    """CPU threads for extraction, matching, mapping and undistortion."""
+    seed: int = 0
+    """Random seed of RANSAC and the mapper (results can still vary with more than one thread)."""
+    verbose: bool = False
+    """Show COLMAP's own log lines."""
+
+    def check(self) -> None:
+        from tridehaze_plugin.errors import ConfigError
+
+        if self.max_image_size < 64:
+            raise ConfigError(
+                f"--max-image-size must be at least 64, got {self.max_image_size}",
+                fix="pass e.g. --max-image-size 1600",
+            )
+        if self.max_num_features < 64:
+            raise ConfigError(f"--max-num-features must be at least 64, got {self.max_num_features}")
+        if self.sequential_overlap < 1:
+            raise ConfigError(f"--sequential-overlap must be at least 1, got {self.sequential_overlap}")
+        if self.threads < 1:
+            raise ConfigError(f"--threads must be at least 1, got {self.threads}")
+        if self.enhance not in ENHANCE_CHOICES:
+            raise ConfigError(f"unknown --enhance {self.enhance!r}", fix=f"use one of {', '.join(ENHANCE_CHOICES)}")
+
+
+@dataclass
+class SfmResult:
+    num_images: int
+    registered: list[str]
+    unregistered: list[str]
+    num_points: int
+    mean_reprojection_error: float
+    mean_track_length: float
+    num_models: int
+    matcher: str
+    num_pairs: int
+    num_verified_pairs: int
+    mean_keypoints: float
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class Reporter:
+    """Progress sink; the default does nothing. ``start`` opens a stage of ``total`` steps (None:
+    unknown), ``advance``/``update`` move it, ``finish`` closes it with a one-line summary."""
+
+    def start(self, stage: str, total: int | None) -> None:  # noqa: B027 - optional hook
+        pass
+
+    def advance(self, n: int = 1) -> None:  # noqa: B027 - optional hook
+        pass
+
+    def update(self, completed: int, total: int | None = None) -> None:  # noqa: B027 - optional hook
+        pass
+
+    def finish(self, stage: str, seconds: float, detail: str) -> None:  # noqa: B027 - optional hook
+        pass
+
+
+# ---------------------------------------------------------------------------------- inputs
+
+
+def list_images(folder: Path) -> list[str]:
+    """Names of the image files directly in ``folder``, sorted; DataError when unusable."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise DataError("photo folder not found", where=str(folder), fix="check the --data path")
+    if not folder.is_dir():
+        raise DataError(
+            "--data is a file, not a folder of photos",
+            where=str(folder),
+            fix="pass the folder that holds the photos (use `td-process-data video` for a video)",
+        )
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and is_image_file(p))
+    if len(names) < 2:
+        raise DataError(
+            f"found {len(names)} photo(s); structure-from-motion needs at least 2 (3 or more in practice)",
+            where=str(folder),
+            fix=f"put the photos directly in this folder (endings: {', '.join(IMAGE_SUFFIXES)})",
+        )
+    return names
+
+
+def image_pairs(names: list[str], matcher: str, overlap: int) -> list[tuple[str, str]]:
+    """Pairs to match: all of them, or sequential neighbours (+ quadratic 2^k steps, as COLMAP)."""
+    n = len(names)
+    if matcher == "exhaustive":
+        return [(names[i], names[j]) for i in range(n) for j in range(i + 1, n)]
+    pairs: set[tuple[int, int]] = set()
+    for i in range(n):
+        for k in range(1, overlap + 1):
+            if i + k < n:
+                pairs.add((i, i + k))
+        k = 1
+        while i + overlap + (1 << k) - 1 < n and k < 32:
+            pairs.add((i, i + overlap + (1 << k) - 1))
+            k += 1
+    return [(names[i], names[j]) for i, j in sorted(pairs)]
+
+
+def resolve_matcher(matcher: str, num_images: int, ordered: bool = False) -> str:
+    if matcher != "auto":
+        return matcher
+    return "sequential" if ordered or num_images > EXHAUSTIVE_MAX_IMAGES else "exhaustive"
+
+
+# ---------------------------------------------------------------------------------- the run
+
+
+@contextmanager
+def _colmap_log(verbose: bool) -> Iterator[None]:
+    import pycolmap
+
+    old = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 0 if verbose else 2  # 2: errors only
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = old
+
+
+def run_sfm(
+    image_dir: Path,
+    names: list[str],
+    out_dir: Path,
+    work_dir: Path,
+    opts: SfmOptions,
+    reporter: Reporter | None = None,
+    ordered: bool = False,
+) -> SfmResult:
+    """Reconstruct ``names`` in ``image_dir``; write ``out_dir/images`` and ``out_dir/sparse/0``.
+
+    ``work_dir`` receives the database and matching copies (the caller deletes it). ``ordered``
+    marks the names as a capture sequence (video frames): ``--matcher auto`` is then sequential.
+    """
+    import pycolmap
+
+    opts.check()
+    rep = reporter or Reporter()
+    timings: dict[str, float] = {}
+    work_dir.mkdir(parents=True, exist_ok=True)
+    pycolmap.set_random_seed(opts.seed)
+    with _colmap_log(opts.verbose):
+        # 1. prepare -------------------------------------------------------------------
+        t0 = time.perf_counter()
+        rep.start("prepare", len(names))
+        match_dir = image_dir if opts.enhance == "none" else work_dir / "match"
+        for name in names:
+            rgb = read_image(image_dir / name)  # DataError for corrupt / unreadable photos
+            if opts.enhance != "none":
+                from components.data.images import encode_image
+
+                out = enhance_image(rgb, opts.enhance)
+                write_bytes_atomic(match_dir / name, encode_image(match_dir / name, out))
+            rep.advance()
+        timings["prepare"] = time.perf_counter() - t0
+        rep.finish("prepare", timings["prepare"], f"{len(names)} photos, enhance {opts.enhance}")
+
+        # 2. features ------------------------------------------------------------------
+        t0 = time.perf_counter()
+        db_path = work_dir / "database.db"
+        pycolmap.Database.open(db_path).close()
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = opts.camera_model
+        mode = {
+            "auto": pycolmap.CameraMode.AUTO,
+            "single": pycolmap.CameraMode.SINGLE,
+            "per-image": pycolmap.CameraMode.PER_IMAGE,
+        }[opts.camera_mode]
+        pycolmap.import_images(db_path, image_dir, camera_mode=mode, image_names=names, options=reader)
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = opts.threads
+        extraction.max_image_size = opts.max_image_size
+        extraction.use_gpu = False
+        extraction.sift.max_num_features = opts.max_num_features
+        rep.start("features", len(names))
+        chunk = max(opts.threads, 4)
+        for i in range(0, len(names), chunk):
+            part = names[i : i + chunk]
+            pycolmap.extract_features(
+                db_path,
+                match_dir,
+                image_names=part,
+                camera_mode=mode,
+                reader_options=reader,
+                extraction_options=extraction,
+                device=pycolmap.Device.cpu,
+            )
+            rep.advance(len(part))
+        with pycolmap.Database.open(db_path) as db:
+            kp = {im.name: db.num_keypoints_for_image(im.image_id) for im in db.read_all_images()}
+        mean_kp = float(np.mean([kp.get(n, 0) for n in names]))
+        timings["features"] = time.perf_counter() - t0
+        rep.finish("features", timings["features"], f"{mean_kp:.0f} keypoints per photo")
+
+        # 3. matching ------------------------------------------------------------------
+        t0 = time.perf_counter()
+        matcher = resolve_matcher(opts.matcher, len(names), ordered)
+        pairs = image_pairs(names, matcher, opts.sequential_overlap)
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = opts.threads
+        matching.use_gpu = False
+        verification = pycolmap.TwoViewGeometryOptions()
+        if hasattr(verification, "ransac"):
+            verification.ransac.random_seed = opts.seed
+        rep.start("matching", len(pairs))
+        step = max(50, len(pairs) // 20)
+        for i in range(0, len(pairs), step):
+            part = pairs[i : i + step]
+            pair_file = work_dir / "pairs.txt"
+            pair_file.write_text("".join(f"{a} {b}\n" for a, b in part), encoding="utf-8")
+            pairing = pycolmap.ImportedPairingOptions()
+            pairing.match_list_path = pair_file
+            pycolmap.match_image_pairs(
+                db_path,
+                matching_options=matching,
+                pairing_options=pairing,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+            rep.advance(len(part))
+        with pycolmap.Database.open(db_path) as db:
+            verified = int(db.num_verified_image_pairs())
+        timings["matching"] = time.perf_counter() - t0
+        rep.finish("matching", timings["matching"], f"{matcher}: {verified} of {len(pairs)} pairs verified")
+
+        # 4. mapping -------------------------------------------------------------------
+        t0 = time.perf_counter()
+        mapping = pycolmap.IncrementalPipelineOptions()
+        mapping.num_threads = opts.threads
+        mapping.random_seed = opts.seed
+        mapping.mapper.num_threads = opts.threads
+        mapping.mapper.random_seed = opts.seed
+        mapping.triangulation.random_seed = opts.seed
+        mapping.min_model_size = min(mapping.min_model_size, max(2, len(names) // 2))
+        sparse_dir = work_dir / "sparse"
+        sparse_dir.mkdir(exist_ok=True)
+        rep.start("mapping", len(names))
+        state = {"n": 0}
+
+        def _next_image() -> None:
+            state["n"] += 1
+            rep.advance(1)
+
+        def _initial_pair() -> None:
+            state["n"] += 2
+            rep.advance(2)
+
+        models = pycolmap.incremental_mapping(
+            db_path,
+            image_dir,
+            sparse_dir,
+            options=mapping,
+            initial_image_pair_callback=_initial_pair,
+            next_image_callback=_next_image,
+        )
+        timings["mapping"] = time.perf_counter() - t0
+        if not models:
+            raise DataError(
+                f"structure-from-motion found no model: {verified} of {len(pairs)} photo pairs matched "
+                f"({mean_kp:.0f} keypoints per photo)",
+                where=str(image_dir),
+                fix="use photos with more overlap and texture"
+                + ("" if matcher == "exhaustive" else ", try --matcher exhaustive")
+                + ("" if opts.enhance != "none" else ", or --enhance clahe for hazy photos"),
+            )
+        best_id = max(models, key=lambda k: (models[k].num_reg_images(), models[k].num_points3D()))
+        rec = models[best_id]
+        registered = sorted(im.name for im in rec.images.values() if im.has_pose)
+        unregistered = sorted(set(names) - set(registered))
+        rep.finish(
+            "mapping",
+            timings["mapping"],
+            f"{len(registered)}/{len(names)} registered, {rec.num_points3D()} points, "
+            f"{len(models)} model(s)",
+        )
+        model_dir = sparse_dir / "best"
+        model_dir.mkdir()
+        rec.write(model_dir)
+
+        # 5. undistort -----------------------------------------------------------------
+        t0 = time.perf_counter()
+        rep.start("undistort", None)
+        undist = work_dir / "undistorted"
+        pycolmap.undistort_images(
+            undist,
+            model_dir,
+            image_dir,
+            output_type="COLMAP",
+            num_threads=opts.threads,
+        )
+        out_dir.mkdir(parents=True, exist_ok=True)
+        shutil.move(str(undist / "images"), str(out_dir / "images"))
+        (out_dir / "sparse").mkdir(exist_ok=True)
+        shutil.move(str(undist / "sparse"), str(out_dir / "sparse" / "0"))
+        timings["undistort"] = time.perf_counter() - t0
+        rep.finish("undistort", timings["undistort"], f"{len(registered)} images")
+    return SfmResult(
+        num_images=len(names),
+        registered=registered,
+        unregistered=unregistered,
+        num_points=int(rec.num_points3D()),
+        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
+        mean_track_length=float(rec.compute_mean_track_length()),
+        num_models=len(models),
+        matcher=matcher,
+        num_pairs=len(pairs),
+        num_verified_pairs=verified,
+        mean_keypoints=mean_kp,
+        timings_s={k: round(v, 3) for k, v in timings.items()},
+    )
+
+
+def check_sfm_output(out: Path, data: Path) -> None:
+    """UserError when the output folder would be inside (or be) the photo folder's images."""
+    out, data = Path(out).absolute(), Path(data).absolute()
+    if out == data:
+        raise UserError(
+            "--output-dir is the photo folder itself",
+            where=str(out),
+            fix="write the dataset to a new folder, e.g. --output-dir data/scene",
+        )
