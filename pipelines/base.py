@@ -54,6 +54,10 @@ class Pipeline(nn.Module, ABC):
         """Scalars worth showing (e.g. Gaussian count)."""
         return {}
 
+    def describe(self) -> str:
+        """One line on how the pipeline was set up (e.g. data-driven initial values), or ''."""
+        return ""
+
     @property
     def device(self) -> torch.device:
         for p in self.parameters():

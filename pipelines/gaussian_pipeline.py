@@ -340,5 +340,13 @@ class GaussianPipeline(Pipeline):
     def output_names(self) -> list[str]:
         return ["clean", "hazy", "transmittance", "scattering", "depth", "alpha"]
 
+    def describe(self) -> str:
+        if not self.medium.has_medium:
+            return ""
+        parts = [f"medium {self.config.medium.backend}", f"depth prior {self.depth_source}"]
+        parts += [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in self.init_info.items()]
+        parts.append(f"Stage II from step {self.freeze_step}")
+        return ", ".join(parts)
+
     def stats(self) -> dict[str, float | int]:
         return {"gaussians": self.model.num_gaussians, "stage": int(self.stage)}

@@ -97,6 +97,8 @@ class Trainer:
             f"{len(scene.test_indices)} test views, {int(self.pipeline.stats().get('gaussians', 0))} Gaussians, "
             f"device {self.device}, {torch.get_num_threads()} threads"
         )
+        if self.pipeline.describe():
+            self.console.print(self.pipeline.describe())
         self.console.print(f"run folder: {self.run_dir}")
 
     # ------------------------------------------------------------------------------- loop
