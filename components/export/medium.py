@@ -36,9 +36,7 @@ import torch
 from components.data.images import write_bytes_atomic, write_image_atomic
 from components.data.scene import SceneTransform
 
-LIGHT_DIRS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
-)
+LIGHT_DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
 """Directions at which the (direction-dependent) medium light is sampled, in the export frame."""
 
 SLICE_SIZE = 256
@@ -72,7 +70,9 @@ def _to_frame_matrix(transform: SceneTransform | None) -> np.ndarray:
 
 
 @torch.no_grad()
-def _evaluate(field, pts: np.ndarray, dirs: np.ndarray, chunk: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+def _evaluate(
+    field, pts: np.ndarray, dirs: np.ndarray, chunk: int = 1 << 16
+) -> tuple[np.ndarray, np.ndarray]:
     """beta [P], light [P, 3] of ``field`` at normalised-frame points with one direction [3]."""
     dev = field.bounds_center.device
     betas, lights = [], []
@@ -143,7 +143,7 @@ def export_medium(
     }
     if gaussian_attr is not None:  # gaussian-bound: per-Gaussian values, no field
         raw = gaussian_attr.detach().float().cpu()
-        kappa = float(medium.log_kappa.exp())
+        kappa = float(medium.log_kappa.detach().exp())
         beta = (kappa * torch.nn.functional.softplus(raw[:, 0])).numpy() * scale
         light = torch.sigmoid(raw[:, 1:]).numpy()
         bg = medium.background.detach().float().cpu()

@@ -27,6 +27,7 @@ import torch
 
 from components.data.images import write_bytes_atomic
 from components.data.scene import SceneTransform
+from components.export.quaternions import matrix_to_quat, quat_multiply
 from components.export.sh_rotation import rotate_sh
 from tridehaze_plugin.errors import DataError
 
@@ -80,56 +81,6 @@ class SplatData:
 # ------------------------------------------------------------------------------ frames
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) [..., 4] -> rotation matrices [..., 3, 3]."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quat(R: np.ndarray) -> np.ndarray:  # noqa: N803
-    """Rotation matrix [3, 3] -> unit quaternion (w, x, y, z) with w >= 0 (Shepperd's method)."""
-    R = np.asarray(R, np.float64)
-    tr = np.trace(R)
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a * b of quaternions (w, x, y, z), broadcasting [..., 4]."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
 def to_original_frame(data: SplatData, transform: SceneTransform) -> SplatData:
     """Undo the dataparser similarity ``x_new = s (R x + t)``: Gaussians in the dataset's own world.
 
@@ -179,7 +130,7 @@ def encode_splat_ply(data: SplatData) -> bytes:
     table[:, j] = data.opacity_logits
     table[:, j + 1 : j + 4] = data.log_scales
     table[:, j + 4 : j + 8] = data.quats
-    header = ["ply", "format binary_little_endian 1.0", "comment Tri-DehazeGS clean Gaussians (3DGS layout)"]
+    header = ["ply", "format binary_little_endian 1.0"]  # no comment line: some web viewers choke on it
     header += [f"element vertex {n}"] + [f"property float {p}" for p in names] + ["end_header"]
     return ("\n".join(header) + "\n").encode("ascii") + np.ascontiguousarray(table).tobytes()
 
@@ -222,7 +173,9 @@ def read_splat_ply(path: Path) -> SplatData:
     n = len(v)
 
     def cols(keys: list[str]) -> np.ndarray:
-        return np.stack([np.asarray(v[k], np.float32) for k in keys], axis=1) if keys else np.zeros((n, 0), "f4")
+        return (
+            np.stack([np.asarray(v[k], np.float32) for k in keys], axis=1) if keys else np.zeros((n, 0), "f4")
+        )
 
     rest = cols([f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, k1).transpose(0, 2, 1)
     return SplatData(

@@ -43,7 +43,9 @@ class CameraAgreement:
     extent: float
     """Reference extent: RMS distance of its camera centres from their mean."""
     rotation_deg_median: float
-    """Median angle between aligned and reference camera orientations."""
+    """Median over camera pairs of the angle between their relative rotations in the two
+    reconstructions (needs no alignment, so it is meaningful even when the centres are nearly
+    collinear and the aligning rotation is poorly determined)."""
 
     @property
     def relative_rms(self) -> float:
@@ -77,11 +79,12 @@ def compare_cameras(
     err = np.linalg.norm(a @ (s * R).T + t - b, axis=1)  # [N]
     extent = float(np.sqrt(((b - b.mean(0)) ** 2).sum(1).mean()))
     angles = []
-    for n in names:
-        # world-to-camera rotations: R_est_aligned = R_est @ R^T maps reference world to the camera
-        r_rel = (estimate[n][1] @ R.T) @ reference[n][1].T
-        c = np.clip((np.trace(r_rel) - 1.0) / 2.0, -1.0, 1.0)
-        angles.append(float(np.degrees(np.arccos(c))))
+    for i, ni in enumerate(names):  # relative rotations between cameras: independent of the frames
+        for nj in names[i + 1 :]:
+            rel_est = estimate[ni][1] @ estimate[nj][1].T
+            rel_ref = reference[ni][1] @ reference[nj][1].T
+            c = np.clip((np.trace(rel_est @ rel_ref.T) - 1.0) / 2.0, -1.0, 1.0)
+            angles.append(float(np.degrees(np.arccos(c))))
     return CameraAgreement(
         common=len(names),
         rms=float(np.sqrt((err**2).mean())),

@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from components.data.images import IMAGE_SUFFIXES, is_image_file, read_image, write_bytes_atomic
+from components.data.images import IMAGE_SUFFIXES, encode_image, is_image_file, read_image, write_bytes_atomic
 from components.sfm.enhance import ENHANCE_CHOICES, enhance_image
 from tridehaze_plugin.errors import DataError, UserError
 
@@ -52,14 +52,16 @@ class SfmOptions:
     """Longest side (pixels) at which features are extracted; larger photos are shrunk for SIFT
     only (keypoints and the dataset stay at full resolution)."""
     camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
-    """Camera model estimated by the mapper (undistorted to PINHOLE at the end)."""
+    """Camera model estimated by the mapper (undistorted to PINHOLE at the end). ``PINHOLE`` (separate
+    fx, fy) is poorly constrained with few photos; ``SIMPLE_PINHOLE`` suits already undistorted ones."""
     camera_mode: Literal["auto", "single", "per-image"] = "auto"
     """Shared intrinsics: ``auto`` (one camera per image size and EXIF), ``single`` (one camera for
     all photos, e.g. a video), ``per-image``."""
     max_num_features: int = 8192
     """SIFT features per photo."""
     sequential_overlap: int = 10
-    """Sequential matching: each photo is matched with this many following ones."""
+    """Sequential matching: each photo is matched with this many following ones, and with those
+    2^k ahead for k below it (loops back to the start of a capture are not searched)."""
     threads: int = 2
     """CPU threads for extraction, matching, mapping and undistortion."""
     seed: int = 0
@@ -82,7 +84,9 @@ class SfmOptions:
         if self.threads < 1:
             raise ConfigError(f"--threads must be at least 1, got {self.threads}")
         if self.enhance not in ENHANCE_CHOICES:
-            raise ConfigError(f"unknown --enhance {self.enhance!r}", fix=f"use one of {', '.join(ENHANCE_CHOICES)}")
+            raise ConfigError(
+                f"unknown --enhance {self.enhance!r}", fix=f"use one of {', '.join(ENHANCE_CHOICES)}"
+            )
 
 
 @dataclass
@@ -146,7 +150,8 @@ def list_images(folder: Path) -> list[str]:
 
 
 def image_pairs(names: list[str], matcher: str, overlap: int) -> list[tuple[str, str]]:
-    """Pairs to match: all of them, or sequential neighbours (+ quadratic 2^k steps, as COLMAP)."""
+    """Pairs to match: all of them, or each photo with the next ``overlap`` ones and with those
+    2^k ahead for k < overlap (COLMAP's sequential matcher with quadratic overlap)."""
     n = len(names)
     if matcher == "exhaustive":
         return [(names[i], names[j]) for i in range(n) for j in range(i + 1, n)]
@@ -155,10 +160,9 @@ def image_pairs(names: list[str], matcher: str, overlap: int) -> list[tuple[str,
         for k in range(1, overlap + 1):
             if i + k < n:
                 pairs.add((i, i + k))
-        k = 1
-        while i + overlap + (1 << k) - 1 < n and k < 32:
-            pairs.add((i, i + overlap + (1 << k) - 1))
-            k += 1
+        for k in range(min(overlap, 31)):  # quadratic overlap, as COLMAP: i + 2^k
+            if i + (1 << k) < n:
+                pairs.add((i, i + (1 << k)))
     return [(names[i], names[j]) for i, j in sorted(pairs)]
 
 
@@ -176,7 +180,7 @@ def _colmap_log(verbose: bool) -> Iterator[None]:
     import pycolmap
 
     old = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 0 if verbose else 2  # 2: errors only
+    pycolmap.logging.minloglevel = 0 if verbose else 3  # 3: fatal only; failures are raised as our errors
     try:
         yield
     finally:
@@ -209,11 +213,19 @@ def run_sfm(
         t0 = time.perf_counter()
         rep.start("prepare", len(names))
         match_dir = image_dir if opts.enhance == "none" else work_dir / "match"
+        sizes: dict[tuple[int, int], str] = {}
         for name in names:
             rgb = read_image(image_dir / name)  # DataError for corrupt / unreadable photos
+            sizes.setdefault((rgb.shape[1], rgb.shape[0]), name)
+            if opts.camera_mode == "single" and len(sizes) > 1:
+                (w0, h0), first = next(iter(sizes.items()))
+                raise DataError(
+                    f"--camera-mode single needs photos of one size, but {first} is {w0}x{h0} and "
+                    f"{name} is {rgb.shape[1]}x{rgb.shape[0]}",
+                    where=str(image_dir),
+                    fix="use --camera-mode auto (one camera per size) or resize the photos",
+                )
             if opts.enhance != "none":
-                from components.data.images import encode_image
-
                 out = enhance_image(rgb, opts.enhance)
                 write_bytes_atomic(match_dir / name, encode_image(match_dir / name, out))
             rep.advance()
@@ -284,7 +296,12 @@ def run_sfm(
             )
             rep.advance(len(part))
         with pycolmap.Database.open(db_path) as db:
-            verified = int(db.num_verified_image_pairs())
+            _, geoms = db.read_two_view_geometries()
+        bad = {
+            pycolmap.TwoViewGeometryConfiguration.UNDEFINED,
+            pycolmap.TwoViewGeometryConfiguration.DEGENERATE,
+        }
+        verified = sum(1 for g in geoms if g.config not in bad and len(g.inlier_matches) > 0)
         timings["matching"] = time.perf_counter() - t0
         rep.finish("matching", timings["matching"], f"{matcher}: {verified} of {len(pairs)} pairs verified")
 
@@ -335,8 +352,7 @@ def run_sfm(
         rep.finish(
             "mapping",
             timings["mapping"],
-            f"{len(registered)}/{len(names)} registered, {rec.num_points3D()} points, "
-            f"{len(models)} model(s)",
+            f"{len(registered)}/{len(names)} registered, {rec.num_points3D()} points, {len(models)} model(s)",
         )
         model_dir = sparse_dir / "best"
         model_dir.mkdir()

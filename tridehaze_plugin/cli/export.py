@@ -69,9 +69,7 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
     pipeline = run.pipeline
     model = getattr(pipeline, "model", None)
     if model is None or not hasattr(model, "means"):
-        raise UserError(
-            "this run's pipeline has no Gaussian model to export", where=str(args.load_config)
-        )
+        raise UserError("this run's pipeline has no Gaussian model to export", where=str(args.load_config))
     transform = run.datamanager.scene.transform if args.frame == "original" else None
     splat = SplatData.from_model(model)
     if transform is not None:
@@ -112,7 +110,9 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
             f"median {med['beta_median']:.4g}, max {med['beta_max']:.4g}) and 3 extinction slices"
         )
     else:
-        console.print(f"wrote {out / 'medium.npz'} (per-Gaussian extinction and light of the gaussian-bound medium)")
+        console.print(
+            f"wrote {out / 'medium.npz'} (per-Gaussian extinction and light of the gaussian-bound medium)"
+        )
     return summary
 
 

@@ -21,7 +21,14 @@ from typing import Annotated, Any
 
 import tyro
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
 from components.sfm.colmap_sfm import Reporter, SfmOptions, check_sfm_output, list_images, run_sfm
 from components.synth.writer import staged_output, write_json
@@ -61,9 +68,10 @@ class VideoArgs:
     """Replace a non-empty output folder (the old one stays until the new one is complete)."""
 
 
-Command = Annotated[ImagesArgs, tyro.conf.subcommand("images", description=ImagesArgs.__doc__)] | Annotated[
-    VideoArgs, tyro.conf.subcommand("video", description=VideoArgs.__doc__)
-]
+Command = (
+    Annotated[ImagesArgs, tyro.conf.subcommand("images", description=ImagesArgs.__doc__)]
+    | Annotated[VideoArgs, tyro.conf.subcommand("video", description=VideoArgs.__doc__)]
+)
 
 
 class RichReporter(Reporter):
@@ -90,7 +98,9 @@ class RichReporter(Reporter):
     def finish(self, stage: str, seconds: float, detail: str) -> None:
         if self.progress is not None and self.task is not None:
             task = self.progress.tasks[self.task]
-            self.progress.update(self.task, total=task.completed or 1, completed=task.completed or 1, visible=False)
+            self.progress.update(
+                self.task, total=task.completed or 1, completed=task.completed or 1, visible=False
+            )
             self.task = None
         self.count += 1
         self.console.print(f"[{self.count}] {stage:<9} {seconds:6.1f} s  {detail}")
@@ -121,7 +131,9 @@ def process(args: ImagesArgs | VideoArgs, console: Console | None = None) -> dic
     is_video = isinstance(args, VideoArgs)
     if is_video:
         if args.num_frames < 2:
-            raise ConfigError(f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 150")
+            raise ConfigError(
+                f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 150"
+            )
         if not args.data.is_file():
             raise ConfigError(
                 "video file not found" if not args.data.exists() else "--data is a folder, not a video file",
