@@ -65,7 +65,6 @@ def build(method: str, over: dict, data: Path, points: int, backend: str):
         rasterizer=replace(p.rasterizer, backend=backend),
         model=replace(p.model, max_init_points=points),
         composite=replace(p.composite, ray_stride=over.get("stride", p.composite.ray_stride)),
-        depth_prior="sfm" if p.lambda_depth > 0 else p.depth_prior,
     )
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)

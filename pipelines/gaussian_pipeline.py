@@ -46,9 +46,6 @@ from tridehaze_plugin.config import RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
-DEFAULT_DEPTH_PRIOR = "warmup"
-"""Pseudo-depth used by ``auto`` when the dataset has no depth files (measured: docs/medium.md)."""
-
 
 @dataclass
 class PipelineConfig:
@@ -82,7 +79,7 @@ class PipelineConfig:
     depth_prior: Literal["auto", "files", "dcp", "sfm", "warmup", "none"] = "auto"
     """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
     channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
-    every training view has one, else the measured best (warmup)."""
+    every training view has one, else SfM when the scene has seed points, else warmup."""
     warmup_steps: int = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
     lambda_depth: float = 0.0
@@ -174,7 +171,7 @@ class GaussianPipeline(Pipeline):
 
         train = datamanager.train_indices
         uses_medium = self.medium.has_medium
-        source = resolve_depth_prior(config.depth_prior, datamanager, DEFAULT_DEPTH_PRIOR)
+        source = resolve_depth_prior(config.depth_prior, datamanager)
         needs_depth = training and config.lambda_depth > 0 and source != "none"
         needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
         dcp = dcp_per_view(datamanager, train) if needs_dcp or (needs_depth and source == "dcp") else {}

@@ -125,7 +125,7 @@ def build_view_priors(
         if source == "files" and dm.scene.depth_paths[i] is not None:
             d, valid = depth_from_file(dm.scene.depth_paths[i], H, W)
         elif source == "dcp":
-            d, valid = depth_from_dcp(dm.image(i).cpu().numpy())
+            d, valid = depth_from_dcp(dm.image(i).cpu().numpy(), result=dcp.get(i))
         elif source == "sfm" and points is not None and len(points) > 0:
             cpu = cam.to("cpu")
             d, valid = depth_from_sfm(
@@ -141,13 +141,17 @@ def build_view_priors(
     return out
 
 
-def resolve_depth_prior(source: str, dm: DataManager, default: str) -> str:
-    """``auto``: the dataset's depth files when every training view has one, else ``default``."""
+def resolve_depth_prior(source: str, dm: DataManager) -> str:
+    """``auto``: the dataset's depth files when every training view has one; else the SfM points
+    when the scene has any (free, and the most accurate of our priors on generated scenes); else
+    a haze-agnostic warm-up (docs/medium.md)."""
     if source != "auto":
         return source
     if all(dm.scene.depth_paths[i] is not None for i in dm.train_indices):
         return "files"
-    return default
+    if dm.scene.points is not None and len(dm.scene.points) > 0:
+        return "sfm"
+    return "warmup"
 
 
 def scaled_step(step: int | None, fraction: float, max_steps: int) -> int:

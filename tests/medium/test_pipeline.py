@@ -176,3 +176,18 @@ def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
     assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 200
     cfg2 = replace(cfg.pipeline, freeze_step=123)
     assert scaled_step(cfg2.freeze_step, cfg2.freeze_fraction, 1000) == 123
+
+
+def test_auto_depth_prior_prefers_files_then_sfm_then_warmup():
+    from types import SimpleNamespace
+
+    from pipelines.haze_priors import resolve_depth_prior
+
+    def dm(depths, points):
+        return SimpleNamespace(train_indices=[0, 1], scene=SimpleNamespace(depth_paths=depths, points=points))
+
+    pts = torch.zeros(5, 3)
+    assert resolve_depth_prior("auto", dm([Path("a"), Path("b")], pts)) == "files"
+    assert resolve_depth_prior("auto", dm([Path("a"), None], pts)) == "sfm"
+    assert resolve_depth_prior("auto", dm([None, None], None)) == "warmup"
+    assert resolve_depth_prior("dcp", dm([Path("a"), Path("b")], pts)) == "dcp"
