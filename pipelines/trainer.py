@@ -22,13 +22,13 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from components.data.loader import load_scene
 from pipelines.base import Pipeline
-from pipelines.checkpoint import checkpoint_path, save_checkpoint
+from pipelines.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
 from pipelines.config import TrainerConfig
 from pipelines.datamanager import DataManager
 from pipelines.evaluate import evaluate_split
 from pipelines.optimizers import Optimizers
 from pipelines.run_config import save_config, write_text_atomic
-from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.errors import ConfigError, UserError
 
 
 @dataclass
@@ -65,13 +65,31 @@ def make_run_dir(cfg: TrainerConfig, scene_name: str) -> Path:
     return run_dir
 
 
-class Trainer:
-    """Builds the pieces from a config and runs the optimisation loop."""
+MAX_BAD_STEPS = 25
+"""Consecutive steps with a non-finite loss or gradient after which training stops."""
 
-    def __init__(self, config: TrainerConfig, console: Console | None = None) -> None:
+
+class TrainingDiverged(UserError):
+    pass
+
+
+class Trainer:
+    """Builds the pieces from a config and runs the optimisation loop.
+
+    ``resume``: an existing run folder to continue from its newest checkpoint (same optimizer
+    state, stage and RNG state; the view order is a function of (seed, step) alone).
+    """
+
+    def __init__(
+        self, config: TrainerConfig, console: Console | None = None, resume: Path | None = None
+    ) -> None:
         self.config = config
         # soft_wrap: paths and metric lines stay on one line in logs and pipes
         self.console = console or Console(soft_wrap=True)
+        self.resume = Path(resume) if resume is not None else None
+        self.start_step = 0
+        self.bad_steps = 0
+        self.skipped_steps = 0
 
     def setup(self) -> None:
         cfg = self.config
@@ -86,8 +104,15 @@ class Trainer:
             raise ConfigError("the dataset has no training views", where=str(scene.root))
         self.datamanager = DataManager(scene, self.device, seed=cfg.seed)
         self.pipeline: Pipeline = cfg.pipeline.setup(self.datamanager, seed=cfg.seed, max_steps=cfg.max_steps)
+        if self.resume is not None:
+            self.run_dir = self.resume
+            self._restore()
         self.optimizers = Optimizers(self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps)
-        self.run_dir = make_run_dir(cfg, scene.name)
+        if self.resume is not None:
+            self.optimizers.load_state_dict(self._payload["optimizers"])
+            del self._payload
+        else:
+            self.run_dir = make_run_dir(cfg, scene.name)
         save_config(cfg, self.run_dir / "config.yml")
         write_text_atomic(
             self.run_dir / "dataparser_transforms.json", json.dumps(scene.transform.to_dict(), indent=2)
@@ -100,6 +125,30 @@ class Trainer:
         if self.pipeline.describe():
             self.console.print(self.pipeline.describe())
         self.console.print(f"run folder: {self.run_dir}")
+        if self.start_step:
+            self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
+
+    def _restore(self) -> None:
+        """Load the newest checkpoint of the run being resumed into the freshly built pipeline."""
+        ckpt = latest_checkpoint(self.run_dir)
+        if ckpt is None:
+            raise UserError(
+                "nothing to resume: the run has no checkpoint",
+                where=str(self.run_dir / "checkpoints"),
+                fix="start a new run instead",
+            )
+        payload = load_checkpoint(ckpt, map_location=self.device)
+        try:
+            self.pipeline.load_state_dict(payload["pipeline"])
+        except (RuntimeError, KeyError) as exc:
+            first = str(exc).strip().splitlines()[0][:200]
+            raise UserError(
+                f"checkpoint does not match the run's config ({first})", where=str(ckpt)
+            ) from None
+        self.start_step = int(payload["step"])
+        if "torch_rng" in payload:
+            torch.set_rng_state(payload["torch_rng"].cpu())
+        self._payload = payload
 
     # ------------------------------------------------------------------------------- loop
     def train(self) -> TrainResult:
@@ -123,49 +172,95 @@ class Trainer:
             disable=not interactive,
         )
         metrics: dict[str, float] = {}
+        done = self.start_step
         with progress, log_path.open("a", encoding="utf-8") as log:
-            task = progress.add_task("train", total=cfg.max_steps, loss=math.nan, psnr=math.nan, its=0.0)
-            for step in range(cfg.max_steps):
-                t0 = time.perf_counter()
-                opt.schedule(step)
-                result = pipe.train_loss(step)
-                opt.zero_grad()
-                result.loss.backward()
-                pipe.after_backward(step)
-                opt.step()
-                pipe.after_optimizer_step(step, opt.optimizers)
-                dt = time.perf_counter() - t0
-                its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
-                metrics = {"loss": float(result.loss.detach()), **result.metrics}
-                progress.update(
-                    task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its
+            task = progress.add_task(
+                "train", total=cfg.max_steps, completed=self.start_step, loss=math.nan, psnr=math.nan, its=0.0
+            )
+            try:
+                for step in range(self.start_step, cfg.max_steps):
+                    t0 = time.perf_counter()
+                    opt.schedule(step)
+                    result = pipe.train_loss(step)
+                    opt.zero_grad()
+                    result.loss.backward()
+                    if not self._finite(result.loss):
+                        self._skip_bad_step(step)
+                        done = step + 1
+                        progress.update(task, advance=1)
+                        if done == cfg.max_steps:
+                            self.save(done)
+                        continue
+                    self.bad_steps = 0
+                    pipe.after_backward(step)
+                    opt.step()
+                    pipe.after_optimizer_step(step, opt.optimizers)
+                    dt = time.perf_counter() - t0
+                    its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
+                    metrics = {"loss": float(result.loss.detach()), **result.metrics}
+                    progress.update(
+                        task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its
+                    )
+                    done = step + 1
+                    if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
+                        row = {
+                            "step": done,
+                            "time": time.perf_counter() - start,
+                            "its": its,
+                            **metrics,
+                            **pipe.stats(),
+                        }
+                        log.write(json.dumps(row) + "\n")
+                        log.flush()
+                        if not interactive and (
+                            done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps
+                        ):
+                            self.console.print(
+                                f"step {done}/{cfg.max_steps}  loss {metrics['loss']:.4f}  "
+                                f"PSNR {metrics.get('psnr', math.nan):.2f}  {its:.2f} it/s"
+                            )
+                    if done % cfg.steps_per_save == 0 or done == cfg.max_steps:
+                        self.save(done)
+            except KeyboardInterrupt:
+                progress.stop()
+                path = self.save(done)
+                self.console.print(
+                    f"interrupted at step {done}; checkpoint written to {path}\n"
+                    f"continue with: td-train --resume {self.run_dir}"
                 )
-                done = step + 1
-                if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
-                    row = {
-                        "step": done,
-                        "time": time.perf_counter() - start,
-                        "its": its,
-                        **metrics,
-                        **pipe.stats(),
-                    }
-                    log.write(json.dumps(row) + "\n")
-                    log.flush()
-                    if not interactive and (done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps):
-                        self.console.print(
-                            f"step {done}/{cfg.max_steps}  loss {metrics['loss']:.4f}  "
-                            f"PSNR {metrics.get('psnr', math.nan):.2f}  {its:.2f} it/s"
-                        )
-                if done % cfg.steps_per_save == 0 or done == cfg.max_steps:
-                    self.save(done)
+                raise
         seconds = time.perf_counter() - start
         final: dict[str, Any] = {"train_seconds": seconds, "steps": cfg.max_steps, **pipe.stats()}
+        if self.skipped_steps:
+            final["skipped_nonfinite_steps"] = self.skipped_steps
         final.update({f"train_{k}": v for k, v in metrics.items()})
         if cfg.eval_at_end and self.datamanager.test_indices:
             final.update(evaluate_split(pipe, self.datamanager, "test"))
         write_text_atomic(self.run_dir / "eval" / "metrics.json", json.dumps(final, indent=2))
         self._print_summary(final)
         return TrainResult(self.run_dir, cfg.max_steps, seconds, final)
+
+    def _finite(self, loss: torch.Tensor) -> bool:
+        if not bool(torch.isfinite(loss.detach())):
+            return False
+        return all(
+            bool(torch.isfinite(p.grad).all()) for p in self.pipeline.parameters() if p.grad is not None
+        )
+
+    def _skip_bad_step(self, step: int) -> None:
+        """Drop a step whose loss or gradient is not finite; stop after too many in a row."""
+        self.optimizers.zero_grad()
+        self.skipped_steps += 1
+        self.bad_steps += 1
+        if self.bad_steps >= MAX_BAD_STEPS:
+            last = latest_checkpoint(self.run_dir)
+            raise TrainingDiverged(
+                f"training diverged: {self.bad_steps} consecutive steps (up to step {step + 1}) had a "
+                "non-finite loss or gradient",
+                where=str(last) if last else str(self.run_dir),
+                fix="the last good checkpoint is kept; lower the learning rates or check the data, then "
+                "resume with td-train --resume RUN",
+            )
 
     def save(self, step: int) -> Path:
         payload = {

@@ -2,11 +2,14 @@
 
 ``td-train --load-config RUN/config.yml [overrides]`` re-runs a saved configuration (read
 safely: values are merged into the method's preset, nothing in the file is executed).
+``td-train --resume RUN [--max-steps N]`` continues a run in its own folder from its newest
+checkpoint (written on schedule and on Ctrl-C).
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import tyro
 
@@ -46,12 +49,30 @@ def parse_args(argv: list[str]) -> TrainerConfig:
     return cfg
 
 
+def split_resume(argv: list[str]) -> tuple[Path | None, list[str]]:
+    """``--resume RUN`` becomes ``--load-config RUN/config.yml`` plus the run folder to continue."""
+    if "--resume" not in argv:
+        return None, argv
+    i = argv.index("--resume")
+    if i + 1 >= len(argv):
+        raise ConfigError("--resume needs a run folder (OUTPUT/<scene>/<method>/<timestamp>)")
+    run = Path(argv[i + 1])
+    if not (run / "config.yml").is_file():
+        raise ConfigError(
+            "no config.yml in the run folder to resume", where=str(run), fix="pass a run folder"
+        )
+    if "--load-config" in argv:
+        raise ConfigError("--resume and --load-config exclude each other", fix="use one of them")
+    return run, [*argv[:i], *argv[i + 2 :], "--load-config", str(run / "config.yml")]
+
+
 def main(argv: list[str] | None = None) -> None:
-    cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    resume, args = split_resume(sys.argv[1:] if argv is None else argv)
+    cfg = parse_args(args)
     if cfg.dataset.data is None:
         cfg.dataset.data = demo_scene_path(cfg.dataset.cache_dir)
         print(f"no --data given: training on the built-in demo scene ({cfg.dataset.data})")
-    Trainer(cfg).train()
+    Trainer(cfg, resume=resume).train()
 
 
 def entrypoint() -> None:

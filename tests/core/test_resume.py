@@ -1,0 +1,112 @@
+"""Resume after Ctrl-C continues exactly where the run stopped; non-finite steps are skipped, and
+repeated ones stop the run with the last good checkpoint intact."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from rich.console import Console
+
+from components.synth.generate import SceneConfig, generate_scene
+from pipelines.base import StepResult
+from pipelines.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.trainer import MAX_BAD_STEPS, Trainer, TrainingDiverged
+from tridehaze_plugin.cli.train import parse_args, split_resume
+from tridehaze_plugin.errors import ConfigError
+
+STEPS = 8
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("resume") / "scene"
+    generate_scene(
+        SceneConfig(output_dir=root, layout="room", haze="homogeneous", seed=4, num_views=5, width=32,
+                    height=24, samples=8, supersample=1, num_points=200, test_every=0)
+    )  # fmt: skip
+    return root
+
+
+def _cfg(scene: Path, out: Path, *extra: str):
+    return parse_args([
+        "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--max-steps", str(STEPS),
+        "--pipeline.freeze-step", "4", "--pipeline.medium-hold-fraction", "0", "--pipeline.depth-prior", "sfm",
+        "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end", "--steps-per-save", "2", "--threads", "1",
+        *extra,
+    ])  # fmt: skip
+
+
+def _trainer(cfg, resume=None) -> Trainer:
+    t = Trainer(cfg, console=Console(quiet=True), resume=resume)
+    t.setup()
+    return t
+
+
+def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path):
+    full = _trainer(_cfg(scene, tmp_path / "a"))
+    full.train()
+
+    part = _trainer(_cfg(scene, tmp_path / "b"))
+    real = part.pipeline.train_loss
+
+    def stop_at_5(step):
+        if step == 5:
+            raise KeyboardInterrupt
+        return real(step)
+
+    part.pipeline.train_loss = stop_at_5
+    with pytest.raises(KeyboardInterrupt):
+        part.train()
+    assert load_checkpoint(latest_checkpoint(part.run_dir))["step"] == 5  # written on Ctrl-C
+
+    resume, args = split_resume(["--resume", str(part.run_dir)])
+    again = _trainer(parse_args(args), resume=resume)
+    assert again.start_step == 5 and again.run_dir == part.run_dir
+    again.train()
+    a, b = full.pipeline.state_dict(), again.pipeline.state_dict()
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=1e-6, msg=k)
+    assert int(again.pipeline.stage) == 2
+
+
+def test_nonfinite_steps_are_skipped_and_counted(scene, tmp_path):
+    t = _trainer(_cfg(scene, tmp_path))
+    real = t.pipeline.train_loss
+
+    def sometimes_nan(step):
+        res = real(step)
+        return StepResult(res.loss * float("nan"), res.metrics) if step in (2, 3) else res
+
+    t.pipeline.train_loss = sometimes_nan
+    result = t.train()
+    assert result.metrics["skipped_nonfinite_steps"] == 2
+    for p in t.pipeline.parameters():
+        assert torch.isfinite(p).all()
+
+
+def test_repeated_nonfinite_steps_stop_with_last_good_checkpoint(scene, tmp_path):
+    cfg = _cfg(scene, tmp_path, "--max-steps", str(MAX_BAD_STEPS + 10))
+    t = _trainer(cfg)
+    real = t.pipeline.train_loss
+
+    def nan_from_4(step):
+        res = real(step)
+        return StepResult(res.loss * float("nan"), res.metrics) if step >= 4 else res
+
+    t.pipeline.train_loss = nan_from_4
+    with pytest.raises(TrainingDiverged, match="non-finite"):
+        t.train()
+    ckpt = latest_checkpoint(t.run_dir)
+    payload = load_checkpoint(ckpt)
+    assert payload["step"] == 4
+    assert all(torch.isfinite(v).all() for v in payload["pipeline"].values() if v.is_floating_point())
+
+
+def test_resume_bad_input(tmp_path):
+    with pytest.raises(ConfigError, match="no config.yml"):
+        split_resume(["--resume", str(tmp_path)])
+    with pytest.raises(ConfigError, match="needs a run folder"):
+        split_resume(["--resume"])
