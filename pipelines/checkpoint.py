@@ -38,6 +38,8 @@ def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
     if keep > 0:
         for old in sorted(path.parent.glob(CHECKPOINT_GLOB))[:-keep]:
             old.unlink(missing_ok=True)
+    for stale in path.parent.glob(".tmp-*.ckpt"):  # left by a process killed mid-write (SIGKILL)
+        stale.unlink(missing_ok=True)
     return path
 
 
