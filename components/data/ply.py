@@ -49,24 +49,33 @@ class _Element:
     props: list[_Prop]
 
 
-def read_ply_points(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """PLY file -> (xyz [M, 3] float64, rgb [M, 3] uint8 or None)."""
+def read_ply_vertex(
+    path: Path, what: str = "PLY file", not_found_fix: str | None = None, invalid_fix: str = "re-export it"
+) -> np.ndarray:
+    """The ``vertex`` element of a PLY file as a structured array; a one-line DataError otherwise.
+
+    ``what`` names the file in messages (e.g. "point cloud"); shared by every PLY reader.
+    """
     path = Path(path)
     try:
         data = path.read_bytes()
     except FileNotFoundError:
-        raise DataError(
-            "point cloud file not found", where=str(path), fix="fix ply_file_path or remove it"
-        ) from None
+        raise DataError(f"{what} not found", where=str(path), fix=not_found_fix) from None
     except OSError as exc:
-        raise DataError(f"point cloud cannot be read ({exc})", where=str(path)) from None
+        raise DataError(f"{what} cannot be read ({exc.strerror or exc})", where=str(path)) from None
     try:
         fmt, elements, body = _parse_header(data)
-        vertex = _read_vertex(fmt, elements, body)
+        return _read_vertex(fmt, elements, body)
     except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:
-        raise DataError(
-            f"point cloud is not a valid PLY file ({exc})", where=str(path), fix="re-export it as PLY"
-        ) from None
+        raise DataError(f"{what} is not a valid PLY file ({exc})", where=str(path), fix=invalid_fix) from None
+
+
+def read_ply_points(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """PLY file -> (xyz [M, 3] float64, rgb [M, 3] uint8 or None)."""
+    path = Path(path)
+    vertex = read_ply_vertex(
+        path, "point cloud", not_found_fix="fix ply_file_path or remove it", invalid_fix="re-export it as PLY"
+    )
     names = vertex.dtype.names or ()
     if not all(k in names for k in ("x", "y", "z")):
         raise DataError(

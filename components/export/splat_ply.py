@@ -144,18 +144,10 @@ def write_splat_ply(path: Path, data: SplatData) -> int:
 
 def read_splat_ply(path: Path) -> SplatData:
     """Read a 3DGS PLY (binary or ASCII); DataError when it is not one."""
-    from components.data.ply import _parse_header, _read_vertex
+    from components.data.ply import read_ply_vertex
 
     path = Path(path)
-    try:
-        blob = path.read_bytes()
-    except OSError as exc:
-        raise DataError(f"cannot read the PLY file ({exc.strerror or exc})", where=str(path)) from None
-    try:
-        fmt, elements, body = _parse_header(blob)
-        v = _read_vertex(fmt, elements, body)
-    except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:
-        raise DataError(f"not a valid PLY file ({exc})", where=str(path), fix="re-export it") from None
+    v = read_ply_vertex(path, "PLY file")
     names = set(v.dtype.names or ())
     need = {"x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"}
     need |= {f"scale_{i}" for i in range(3)} | {f"rot_{i}" for i in range(4)}
