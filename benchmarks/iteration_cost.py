@@ -40,6 +40,7 @@ from components.data.loader import load_scene  # noqa: E402
 from components.synth.generate import SceneConfig, generate_scene  # noqa: E402
 from pipelines.datamanager import DataManager  # noqa: E402
 from pipelines.optimizers import Optimizers  # noqa: E402
+from pipelines.trainer import optimization_step  # noqa: E402
 from tridehaze_plugin.registry import REGISTRY, load_all  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results"
@@ -76,13 +77,7 @@ def build(method: str, over: dict, data: Path, points: int, backend: str):
 
 def iteration(pipe, opt, step: int) -> float:
     t0 = time.perf_counter()
-    opt.schedule(step)
-    res = pipe.train_loss(step)
-    opt.zero_grad()
-    res.loss.backward()
-    pipe.after_backward(step)
-    opt.step()
-    pipe.after_optimizer_step(step, opt.optimizers)
+    optimization_step(pipe, opt, step)
     return time.perf_counter() - t0
 
 

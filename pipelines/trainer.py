@@ -10,6 +10,7 @@ import math
 import os
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -21,7 +22,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from components.data.loader import load_scene
-from pipelines.base import Pipeline
+from pipelines.base import Pipeline, StepResult
 from pipelines.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
 from pipelines.config import TrainerConfig
 from pipelines.datamanager import DataManager
@@ -63,6 +64,28 @@ def make_run_dir(cfg: TrainerConfig, scene_name: str) -> Path:
         n += 1
     run_dir.mkdir(parents=True)
     return run_dir
+
+
+def optimization_step(
+    pipeline: Pipeline,
+    optimizers: Optimizers,
+    step: int,
+    accept: Callable[[torch.Tensor], bool] | None = None,
+) -> tuple[StepResult, bool]:
+    """One training step: loss, backward, hooks and update, in the order every caller needs.
+
+    ``accept(loss)`` returning False (e.g. a non-finite gradient) skips the hooks and the update.
+    """
+    optimizers.schedule(step)
+    result = pipeline.train_loss(step)
+    optimizers.zero_grad()
+    result.loss.backward()
+    if accept is not None and not accept(result.loss):
+        return result, False
+    pipeline.after_backward(step)
+    optimizers.step()
+    pipeline.after_optimizer_step(step, optimizers.optimizers)
+    return result, True
 
 
 MAX_BAD_STEPS = 25
@@ -180,11 +203,8 @@ class Trainer:
             try:
                 for step in range(self.start_step, cfg.max_steps):
                     t0 = time.perf_counter()
-                    opt.schedule(step)
-                    result = pipe.train_loss(step)
-                    opt.zero_grad()
-                    result.loss.backward()
-                    if not self._finite(result.loss):
+                    result, ok = optimization_step(pipe, opt, step, accept=self._finite)
+                    if not ok:
                         self._skip_bad_step(step)
                         done = step + 1
                         progress.update(task, advance=1)
@@ -192,9 +212,6 @@ class Trainer:
                             self.save(done)
                         continue
                     self.bad_steps = 0
-                    pipe.after_backward(step)
-                    opt.step()
-                    pipe.after_optimizer_step(step, opt.optimizers)
                     dt = time.perf_counter() - t0
                     its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
                     metrics = {"loss": float(result.loss.detach()), **result.metrics}

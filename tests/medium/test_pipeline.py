@@ -11,7 +11,7 @@ import torch
 
 from components.synth.generate import SceneConfig, generate_scene
 from pipelines.run_loader import load_run
-from pipelines.trainer import Trainer
+from pipelines.trainer import Trainer, optimization_step
 from tridehaze_plugin.cli.train import parse_args
 
 STEPS = 6
@@ -116,13 +116,7 @@ def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path):
     snap = []
     for step in range(8):
         snap.append({k: v.detach().clone() for k, v in pipe.medium.state_dict().items()})
-        opt.schedule(step)
-        res = pipe.train_loss(step)
-        opt.zero_grad()
-        res.loss.backward()
-        pipe.after_backward(step)
-        opt.step()
-        pipe.after_optimizer_step(step, opt.optimizers)
+        optimization_step(pipe, opt, step)
     snap.append({k: v.detach().clone() for k, v in pipe.medium.state_dict().items()})
 
     def changed(a, b):
