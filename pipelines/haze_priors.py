@@ -15,9 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from components.data.cameras import Cameras
 from components.losses.dcp import DCPResult, estimate_dcp
-from components.losses.depth_priors import depth_from_dcp, depth_from_file, depth_from_sfm
+from components.losses.depth_priors import depth_from_dcp, depth_from_file, depth_from_sfm, project_points
 from pipelines.datamanager import DataManager
 
 DEPTH_PRIORS = ("auto", "files", "dcp", "sfm", "warmup", "none")
@@ -44,18 +43,6 @@ def dcp_per_view(dm: DataManager, indices: list[int]) -> dict[int, DCPResult]:
     return {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
 
 
-def _project(points: Tensor, cam: Cameras) -> tuple[Tensor, Tensor, Tensor]:
-    """Pixel coordinates [M, 2], camera z [M] and in-image mask [M] of world points in camera [1]."""
-    vm = cam.viewmats()[0].to(points)  # [4, 4]
-    pc = points @ vm[:3, :3].T + vm[:3, 3]  # [M, 3]
-    z = pc[:, 2]
-    zs = z.clamp_min(1e-6)
-    u = float(cam.fx[0]) * pc[:, 0] / zs + float(cam.cx[0])
-    v = float(cam.fy[0]) * pc[:, 1] / zs + float(cam.cy[0])
-    ok = (z > 1e-3) & (u >= 0) & (v >= 0) & (u < int(cam.width[0])) & (v < int(cam.height[0]))
-    return torch.stack([u, v], -1), z, ok
-
-
 def estimate_medium(
     dm: DataManager, dcp: dict[int, DCPResult], points: Tensor | None, max_views: int = 16
 ) -> MediumEstimate:
@@ -68,20 +55,15 @@ def estimate_medium(
     ratios = []
     for i in list(dcp)[:max_views]:
         cam = dm.camera(i).to("cpu")
-        uv, z, ok = _project(points.detach().float().cpu(), cam)
+        pc, uv = project_points(points.detach().float().cpu(), cam.viewmats()[0], cam.Ks()[0])
+        W, H = int(cam.width[0]), int(cam.height[0])
+        ok = (pc[:, 2] > 1e-3) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < W) & (uv[:, 1] < H)
         if int(ok.sum()) == 0:
             continue
         t = torch.from_numpy(dcp[i].transmittance)  # [H, W]
         px = uv[ok].long()
         t_at = t[px[:, 1], px[:, 0]].clamp(1e-3, 0.999)
-        ray = torch.stack(
-            [
-                (uv[ok, 0] - float(cam.cx[0])) / float(cam.fx[0]),
-                (uv[ok, 1] - float(cam.cy[0])) / float(cam.fy[0]),
-            ],
-            -1,
-        )
-        path = z[ok] * torch.sqrt(1 + (ray**2).sum(-1))  # [m] distance along the ray
+        path = pc[ok].norm(dim=-1)  # [m] distance from the camera along the ray
         ratios.append(-torch.log(t_at) / path.clamp_min(1e-6))
     if not ratios:
         return MediumEstimate(airlight, None)

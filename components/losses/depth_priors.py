@@ -76,6 +76,16 @@ def depth_from_dcp(
     return torch.from_numpy(prior), torch.from_numpy(valid)
 
 
+def project_points(points: Tensor, viewmat: Tensor, K: Tensor) -> tuple[Tensor, Tensor]:  # noqa: N803
+    """World points [M, 3] -> camera coordinates [M, 3] and pixel coordinates [M, 2] (OpenCV axes;
+    z <= 0 gives meaningless pixels, callers mask by z)."""
+    vm, k = viewmat.to(points), K.to(points)
+    pc = points @ vm[:3, :3].T + vm[:3, 3]  # [M, 3]
+    z = pc[:, 2:3].clamp_min(torch.finfo(points.dtype).tiny)
+    uv = pc[:, :2] / z * torch.stack([k[0, 0], k[1, 1]]) + torch.stack([k[0, 2], k[1, 2]])  # [M, 2]
+    return pc, uv
+
+
 def depth_from_sfm(
     points: Tensor,
     viewmat: Tensor,
@@ -98,14 +108,11 @@ def depth_from_sfm(
     """
     dtype = points.dtype if points.is_floating_point() else torch.float32
     pts = points.to(dtype)
-    vm, k = viewmat.to(pts), K.to(pts)
-    pc = pts @ vm[:3, :3].T + vm[:3, 3]  # [M, 3] camera coordinates
-    pc = pc[pc[:, 2] > near]  # [M', 3]
-    z = pc[:, 2]
-    u = k[0, 0] * pc[:, 0] / z + k[0, 2]  # [M']
-    v = k[1, 1] * pc[:, 1] / z + k[1, 2]
-    iu = torch.floor(u).long()
-    iv = torch.floor(v).long()
+    pc, uv = project_points(pts, viewmat, K)  # [M, 3], [M, 2]
+    front = pc[:, 2] > near
+    z = pc[front, 2]  # [M']
+    iu = torch.floor(uv[front, 0]).long()
+    iv = torch.floor(uv[front, 1]).long()
     r = max(int(splat_radius), 0)
     off = torch.arange(-r, r + 1, device=pts.device)
     du, dv = torch.meshgrid(off, off, indexing="xy")  # [S, S]
