@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from components.synth.generate import SceneConfig, generate_scene
 from pipelines.checkpoint import latest_checkpoint, load_checkpoint
+from tests.tiny_scenes import tiny_hazy_scene
 
 STEPS = 60
 
@@ -25,11 +25,15 @@ def _cmd(*args: str) -> list[str]:
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGKILL is POSIX")
 def test_sigkill_at_random_points_then_resume(tmp_path):
-    scene = tmp_path / "scene"
-    generate_scene(
-        SceneConfig(output_dir=scene, layout="room", haze="homogeneous", seed=5, num_views=4, width=32,
-                    height=24, samples=8, supersample=1, num_points=150, test_every=0)
-    )  # fmt: skip
+    scene = tiny_hazy_scene(
+        tmp_path / "scene",
+        layout="room",
+        haze="homogeneous",
+        seed=5,
+        num_views=4,
+        num_points=150,
+        test_every=0,
+    )
     out = tmp_path / "out"
     args = [
         "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--timestamp", "run",

@@ -9,10 +9,10 @@ import pytest
 import torch
 from rich.console import Console
 
-from components.synth.generate import SceneConfig, generate_scene
 from pipelines.base import StepResult
 from pipelines.checkpoint import latest_checkpoint, load_checkpoint
 from pipelines.trainer import MAX_BAD_STEPS, Trainer, TrainingDiverged
+from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args, split_resume
 from tridehaze_plugin.errors import ConfigError
 
@@ -21,12 +21,9 @@ STEPS = 8
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("resume") / "scene"
-    generate_scene(
-        SceneConfig(output_dir=root, layout="room", haze="homogeneous", seed=4, num_views=5, width=32,
-                    height=24, samples=8, supersample=1, num_points=200, test_every=0)
-    )  # fmt: skip
-    return root
+    return tiny_hazy_scene(
+        tmp_path_factory.mktemp("resume") / "scene", layout="room", haze="homogeneous", seed=4, test_every=0
+    )
 
 
 def _cfg(scene: Path, out: Path, *extra: str):

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from components.synth.generate import SceneConfig, generate_scene
 from pipelines.run_loader import load_run
 from pipelines.trainer import Trainer, optimization_step
+from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 
 STEPS = 6
@@ -19,12 +19,10 @@ STEPS = 6
 
 @pytest.fixture(scope="module")
 def hazy_scene(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("hazy") / "scene"
-    generate_scene(
-        SceneConfig(output_dir=root, layout="courtyard", haze="patchy", seed=2, num_views=6, width=40,
-                    height=30, samples=16, supersample=1, num_points=300, test_every=3)
+    return tiny_hazy_scene(
+        tmp_path_factory.mktemp("hazy") / "scene", layout="courtyard", haze="patchy", seed=2, num_views=6,
+        width=40, height=30, samples=16, num_points=300, test_every=3,
     )  # fmt: skip
-    return root
 
 
 def _config(scene: Path, out: Path, *overrides: str, method: str = "tri-dehaze", steps: int = STEPS):

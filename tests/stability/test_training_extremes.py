@@ -11,19 +11,15 @@ import pytest
 import torch
 from rich.console import Console
 
-from components.synth.generate import SceneConfig, generate_scene
 from pipelines.trainer import Trainer
+from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 
 STEPS = 12
 
 
 def _scene(root: Path, haze: str, beta_scale: float = 1.0) -> Path:
-    generate_scene(
-        SceneConfig(output_dir=root, layout="street", haze=haze, beta_scale=beta_scale, seed=6, num_views=5,
-                    width=32, height=24, samples=8, supersample=1, num_points=200, test_every=4)
-    )  # fmt: skip
-    return root
+    return tiny_hazy_scene(root, layout="street", haze=haze, beta_scale=beta_scale, seed=6, test_every=4)
 
 
 def _rescaled(src: Path, dst: Path, scale: float) -> Path:
