@@ -241,7 +241,7 @@ class GaussianPipeline(Pipeline):
         clean = out.rgb[0]  # [H, W, 3]
         depth = out.depth[0]  # [H, W, 1]
         metrics: dict[str, float] = {}
-        med = self._medium(cam, out, step)
+        med = self._medium(cam, out)
         if med is not None:
             hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
         else:
@@ -296,7 +296,7 @@ class GaussianPipeline(Pipeline):
         # no step (rendering for eval/view): all SH bands
         return self.model.render(self.rasterizer, camera, 10**9 if step is None else step, background)
 
-    def _medium(self, camera: Cameras, out: RasterizeOutput, step: int | None) -> MediumRender | None:
+    def _medium(self, camera: Cameras, out: RasterizeOutput) -> MediumRender | None:
         """T and S for the view, or None without a medium."""
         if not self.medium.has_medium:
             return None
@@ -317,7 +317,7 @@ class GaussianPipeline(Pipeline):
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:
         out = self._rasterize(camera, step, self.background)
         clean = out.rgb[0]  # [H, W, 3]
-        med = self._medium(camera, out, step)
+        med = self._medium(camera, out)
         if med is None:
             T = torch.ones_like(out.alpha[0])
             S = torch.zeros_like(clean)

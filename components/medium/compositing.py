@@ -145,14 +145,12 @@ class MediumCompositor:
         h, w = math.ceil(H / s), math.ceil(W / s)
         # --- coarse rays: block centres, marched to the farthest end depth they serve
         zpad = F.pad(z[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
-        zfar = F.max_pool2d(zpad, s) if s > 1 else zpad  # [1, 1, h, w]
-        if s > 1:  # bilinear neighbours reach one block further
-            zfar = F.max_pool2d(zfar, 3, stride=1, padding=1)
+        zfar = zpad  # [1, 1, h, w]; stride 1: each ray ends at its own pixel's depth
+        if s > 1:  # the block's farthest depth, then one block further for the bilinear neighbours
+            zfar = F.max_pool2d(F.max_pool2d(zpad, s), 3, stride=1, padding=1)
         zfar = zfar[0, 0]  # [h, w]
         xs = (torch.arange(w, device=z.device, dtype=z.dtype) + 0.5) * s  # block centres, pixels
         ys = (torch.arange(h, device=z.device, dtype=z.dtype) + 0.5) * s
-        if s == 1:
-            zfar = z.detach()
         dirs, origin = _pixel_dirs(camera, xs, ys)  # [h, w, 3], [3]
         step_len = dirs.norm(dim=-1)  # [h, w] path length per unit z
         u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
