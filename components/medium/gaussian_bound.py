@@ -57,9 +57,8 @@ class GaussianBoundMedium(MediumField):
 
     def pixel_medium(self, blended: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor]:
         """blended [H, W, 4] alpha-weighted raw values, alpha [H, W, 1] -> beta [H, W], light [H, W, 3]."""
-        a = alpha.clamp_min(1e-6)
-        raw = blended / a + (1 - alpha) * self.background  # background fills uncovered pixels
-        raw = torch.where(alpha > 1e-4, raw, self.background.expand_as(raw))
+        # over-compositing: the Gaussians' alpha-weighted values, the background medium behind them
+        raw = blended + (1 - alpha) * self.background  # [H, W, 4]
         beta = self.log_kappa.exp() * F.softplus(raw[..., 0])
         return beta, torch.sigmoid(raw[..., 1:])
 

@@ -247,3 +247,18 @@ def test_bounds_from_scene_hold_cameras_and_ignore_outliers() -> None:
     field = MediumConfig(backend="triplane").setup(bounds)
     s = field(points[-1:], torch.tensor([[0.0, 0.0, 1.0]]))
     assert torch.isfinite(s.beta).all() and torch.isfinite(s.light).all()
+
+
+def test_gaussian_bound_pixel_medium_is_over_compositing() -> None:
+    """Covered pixels take the Gaussians' values, uncovered ones the background, partial a mix."""
+    field = _make("gaussian-bound")
+    with torch.no_grad():
+        field.background.copy_(torch.tensor([0.5, -1.0, 0.0, 1.0]))
+    value = torch.tensor([2.0, 1.0, -2.0, 0.5])  # one Gaussian's raw medium
+    alpha = torch.tensor([1.0, 0.0, 0.25]).view(3, 1, 1)  # [H=3, W=1, 1]
+    blended = alpha * value  # [3, 1, 4] what the rasterizer returns for a single splat
+    beta, light = field.pixel_medium(blended, alpha)
+    kappa = field.log_kappa.exp()
+    expect = torch.stack([value, field.background.detach(), 0.25 * value + 0.75 * field.background.detach()])
+    torch.testing.assert_close(beta[:, 0], kappa * F.softplus(expect[:, 0]))
+    torch.testing.assert_close(light[:, 0], torch.sigmoid(expect[:, 1:]))
