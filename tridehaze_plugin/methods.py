@@ -82,3 +82,44 @@ register(
         config_factory=tri_dehaze,
     ),
 )
+
+
+def dcp_gs() -> TrainerConfig:
+    """Restoration-assisted baseline: dark-channel dehazed inputs, then vanilla 3DGS."""
+    base = vanilla_gs()
+    return replace(base, method_name="dcp-gs", pipeline=replace(base.pipeline, input_dehaze="dcp"))
+
+
+register(
+    "method",
+    "dcp-gs",
+    MethodSpec(
+        name="dcp-gs",
+        description=(
+            "Restoration-assisted baseline: every training view is dehazed on its own by the dark "
+            "channel prior (guided-filter refined transmittance), then vanilla 3DGS is trained on them."
+        ),
+        config_factory=dcp_gs,
+    ),
+)
+
+
+def tri_dehaze_constant() -> TrainerConfig:
+    """Tri-DehazeGS with a homogeneous medium: the paper's constant-medium ablation."""
+    base = tri_dehaze()
+    pipeline = replace(base.pipeline, medium=replace(base.pipeline.medium, backend="constant"))
+    return replace(base, method_name="tri-dehaze-constant", pipeline=pipeline)
+
+
+register(
+    "method",
+    "tri-dehaze-constant",
+    MethodSpec(
+        name="tri-dehaze-constant",
+        description=(
+            "Tri-DehazeGS with a homogeneous medium (one extinction and one direction-dependent "
+            "light for the whole scene) instead of the tri-plane field: the constant-medium baseline."
+        ),
+        config_factory=tri_dehaze_constant,
+    ),
+)

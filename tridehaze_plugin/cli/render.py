@@ -9,9 +9,9 @@ results can be compared with any external tool. ``--path interpolate`` (a smooth
 split's cameras) and ``--path orbit`` (a circle around the scene centre) write ``DIR/<output>.mp4``
 (OpenCV, mp4v), the frames ``DIR/<output>/frame_NNNNN.png`` and ``DIR/camera_path.json``.
 
-Colour outputs are 8-bit RGB; one-channel outputs are colour-mapped (turbo): per view over its
-1-99 % range; along a path over one range for the whole video so it does not flicker
-(transmittance and alpha [0, 1], others the first frame's 1-99 % range). ``--raw`` also saves them
+Colour outputs are 8-bit RGB; one-channel outputs are colour-mapped (turbo): transmittance and
+alpha always over [0, 1]; others (depth) per view over its 1-99 % range, and along a path over the
+first frame's range for the whole video so it does not flicker. ``--raw`` also saves them
 as float32 ``.npy`` (views only).
 ``side-by-side`` is hazy | clean next to each other.
 """
@@ -144,12 +144,12 @@ def _image(
     out: dict[str, torch.Tensor], name: str, ranges: dict[str, tuple[float, float]] | None
 ) -> np.ndarray:
     """uint8 RGB image of output ``name``; ``ranges`` fixes one-channel colour ranges across frames
-    (filled on first use); None maps each image over its own range."""
+    (filled on first use); None maps each depth-like image over its own range."""
     if name == SIDE_BY_SIDE:
         return np.concatenate([to_png(out["hazy"]), to_png(out["clean"])], axis=1)
     value = out[name]
     if ranges is None:
-        return to_png(value)
+        return to_png(value, (0.0, 1.0) if name in UNIT_RANGE else None)
     if value.shape[-1] == 1 and name not in ranges:
         ranges[name] = (0.0, 1.0) if name in UNIT_RANGE else value_range(value[..., 0].float().cpu().numpy())
     return to_png(value, ranges.get(name))
@@ -164,7 +164,7 @@ def render_views(args: RenderArgs, run, wanted: list[str], indices: list[int]) -
             out = run.pipeline.render(dm.camera(idx))
             stem = Path(names[idx]).stem
             for name in wanted:
-                img = _image(out, name, None)  # one-channel maps: each view over its own range
+                img = _image(out, name, None)  # depth: each view over its own range
                 write_image_atomic(args.output_dir / name / f"{stem}.png", img)
                 if args.raw and name in out and out[name].shape[-1] == 1:
                     write_array_atomic(

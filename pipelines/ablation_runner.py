@@ -1,0 +1,231 @@
+"""Runs ablation variants on scenes as ``td-train`` + ``td-eval`` subprocesses, resumably.
+
+Each (scene, variant) trains into ``OUT/runs/<scene>/<method>/<variant>/`` and its numbers land in
+``OUT/results/<scene>/<variant>.json`` (written last, atomically): a result file whose signature
+(method, overrides, steps, seed, extra arguments) matches is a finished run and is skipped; a run
+folder with a checkpoint but no result (killed, Ctrl-C) is continued with ``td-train --resume``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pipelines.ablation import Variant
+from pipelines.checkpoint import latest_checkpoint
+from pipelines.run_config import write_text_atomic
+
+
+@dataclass(frozen=True)
+class Job:
+    scene: Path
+    variant: Variant
+
+
+@dataclass
+class RunnerOptions:
+    output_dir: Path
+    max_steps: int
+    seed: int = 42
+    threads: int = 1
+    jobs: int = 2
+    bins: str = "auto"
+    lpips: str = "auto"
+    extra: tuple[str, ...] = ()
+
+
+class AblationRunner:
+    """Trains and evaluates jobs, ``jobs`` at a time; Ctrl-C interrupts children (they checkpoint)."""
+
+    def __init__(self, opts: RunnerOptions) -> None:
+        self.opts = opts
+        self._procs: set[subprocess.Popen] = set()
+        self._lock = threading.Lock()
+        self._stopping = False
+
+    # ------------------------------------------------------------------------------- paths
+    def run_dir(self, job: Job) -> Path:
+        return self.opts.output_dir / "runs" / job.scene.name / job.variant.method / job.variant.name
+
+    def result_path(self, job: Job) -> Path:
+        return self.opts.output_dir / "results" / job.scene.name / f"{job.variant.name}.json"
+
+    def log_path(self, job: Job) -> Path:
+        return self.opts.output_dir / "logs" / f"{job.scene.name}__{job.variant.name}.log"
+
+    def signature(self, job: Job) -> dict[str, Any]:
+        o = self.opts
+        return {
+            "scene": str(job.scene.resolve()),
+            "method": job.variant.method,
+            "overrides": list(job.variant.overrides),
+            "max_steps": o.max_steps,
+            "seed": o.seed,
+            "extra": list(o.extra),
+        }
+
+    def finished(self, job: Job) -> dict[str, Any] | None:
+        """The stored result when it exists and was made with the same settings, else None."""
+        path = self.result_path(job)
+        if not path.is_file():
+            return None
+        try:
+            result = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+        return result if result.get("signature") == self.signature(job) else None
+
+    # ------------------------------------------------------------------------------ running
+    def _call(self, cmd: list[str], log) -> int:
+        env = {**os.environ, "OMP_NUM_THREADS": str(self.opts.threads)}
+        log.write(f"$ {' '.join(cmd)}\n")
+        log.flush()
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        with self._lock:
+            self._procs.add(proc)
+        try:
+            return proc.wait()
+        finally:
+            with self._lock:
+                self._procs.discard(proc)
+
+    def run_one(self, job: Job) -> dict[str, Any]:
+        o, v = self.opts, job.variant
+        rd = self.run_dir(job)
+        log_path = self.log_path(job)
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        py = sys.executable
+        t0 = time.perf_counter()
+        with log_path.open("a", encoding="utf-8") as log:
+            if rd.exists() and latest_checkpoint(rd) is not None and self._same_config(job):
+                train = [
+                    py,
+                    "-m",
+                    "tridehaze_plugin.cli.train",
+                    "--resume",
+                    str(rd),
+                    "--max-steps",
+                    str(o.max_steps),
+                ]
+            else:
+                if rd.exists():
+                    shutil.rmtree(rd)  # ours, unfinished and unusable (no checkpoint or other settings)
+                self.state_path(job).parent.mkdir(parents=True, exist_ok=True)
+                write_text_atomic(self.state_path(job), json.dumps(self.signature(job)))
+                train = [
+                    py, "-m", "tridehaze_plugin.cli.train", *v.train_args(), "--data", str(job.scene),
+                    "--output-dir", str(o.output_dir / "runs"), "--timestamp", v.name,
+                    "--max-steps", str(o.max_steps), "--seed", str(o.seed), "--threads", str(o.threads),
+                    "--no-eval-at-end", "--steps-per-save", str(max(o.max_steps // 4, 1)), *o.extra,
+                ]  # fmt: skip
+            code = self._call(train, log)
+            train_s = time.perf_counter() - t0
+            if code != 0 or self._stopping:
+                return self._failed(job, f"td-train exited with {code}", log_path)
+            out_json = rd / "eval" / "test.json"
+            t1 = time.perf_counter()
+            code = self._call(
+                [py, "-m", "tridehaze_plugin.cli.eval", "--load-config", str(rd / "config.yml"),
+                 "--output-path", str(out_json), "--bins", o.bins, "--lpips", o.lpips, "--no-images"],
+                log,
+            )  # fmt: skip
+            eval_s = time.perf_counter() - t1
+            if code != 0:
+                return self._failed(job, f"td-eval exited with {code}", log_path)
+        report = json.loads(out_json.read_text())
+        train_info = _read_json(rd / "eval" / "metrics.json")
+        result = {
+            "signature": self.signature(job),
+            "status": "ok",
+            "scene": job.scene.name,
+            "variant": v.name,
+            "method": v.method,
+            "run": str(rd),
+            "train_seconds": train_info.get("train_seconds", train_s),
+            "wall_seconds": train_s + eval_s,
+            "gaussians": train_info.get("gaussians"),
+            "restoration": report.get("restoration"),
+            "reconstruction": report.get("reconstruction"),
+            "binned": report.get("binned"),
+        }
+        write_text_atomic(self.result_path(job), json.dumps(result, indent=2) + "\n")
+        return result
+
+    def state_path(self, job: Job) -> Path:
+        """The settings a run folder was started with (kept outside it: td-train makes the folder)."""
+        return self.opts.output_dir / "state" / f"{job.scene.name}__{job.variant.name}.json"
+
+    def _same_config(self, job: Job) -> bool:
+        """A run folder may be resumed only if it was started with this job's settings."""
+        return _read_json(self.state_path(job)) == self.signature(job)
+
+    def _failed(self, job: Job, why: str, log_path: Path) -> dict[str, Any]:
+        tail = ""
+        if log_path.is_file():
+            lines = [ln for ln in log_path.read_text(errors="replace").splitlines() if ln.strip()]
+            tail = lines[-1][:300] if lines else ""
+        return {"status": "failed", "scene": job.scene.name, "variant": job.variant.name, "why": why,
+                "last_line": tail, "log": str(log_path)}  # fmt: skip
+
+    def run(self, jobs: list[Job], on_done) -> list[dict[str, Any]]:
+        """Run every unfinished job; ``on_done(job, result, skipped)`` after each."""
+        results: list[dict[str, Any]] = []
+        todo = []
+        for job in jobs:
+            done = self.finished(job)
+            if done is not None:
+                results.append(done)
+                on_done(job, done, True)
+            else:
+                todo.append(job)
+        pool = ThreadPoolExecutor(max_workers=max(self.opts.jobs, 1))
+        try:
+            futures = {pool.submit(self._guarded, job): job for job in todo}
+            for fut in as_completed(futures):
+                res = fut.result()
+                results.append(res)
+                on_done(futures[fut], res, False)
+        except KeyboardInterrupt:
+            self._stopping = True
+            self.interrupt()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+        return results
+
+    def _guarded(self, job: Job) -> dict[str, Any]:
+        if self._stopping:
+            return {"status": "skipped", "scene": job.scene.name, "variant": job.variant.name}
+        return self.run_one(job)
+
+    def interrupt(self) -> None:
+        """Ctrl-C for every child: td-train writes a checkpoint, so the next call resumes."""
+        with self._lock:
+            procs = list(self._procs)
+        for p in procs:
+            try:
+                os.killpg(p.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+        for p in procs:
+            try:
+                p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}

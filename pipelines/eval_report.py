@@ -1,0 +1,108 @@
+"""Human-readable forms of an evaluation: a markdown summary and labelled side-by-side images."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from pipelines.evaluate import BINS, ViewRender
+
+PANEL_LABEL_HEIGHT = 16
+"""Pixels of the caption band above each panel."""
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def markdown_report(report: dict[str, Any]) -> str:
+    """The summary table (both protocols), the binned table and a per-view table."""
+    lines = [
+        f"# Evaluation: {report.get('method', '?')} on {report.get('scene', '?')} ({report['split']} split, "
+        f"{report['views']} views, step {report.get('step', '?')})",
+        "",
+        "| protocol | PSNR | SSIM | LPIPS | views |",
+        "|---|---|---|---|---|",
+    ]
+    for name in ("restoration", "reconstruction"):
+        r = report.get(name)
+        if r is None:
+            lines.append(f"| {name} | n/a | n/a | n/a | 0 |")
+        else:
+            lines.append(
+                f"| {name} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | {r['views']} |"
+            )
+    lp = report.get("lpips", {})
+    if not lp.get("available", False):
+        lines += ["", f"LPIPS not computed: {lp.get('reason', 'unavailable')}"]
+    binned = report.get("binned")
+    if binned is not None:
+        lines += [
+            "",
+            f"Restoration by visibility (transmittance from the {binned['source']}):",
+            "",
+            "| bin | pixels | PSNR | SSIM |",
+            "|---|---|---|---|",
+        ]
+        for name, _, _ in BINS:
+            b = binned[name]
+            lines.append(
+                f"| {name} ({binned['bins'][name]}) | {100 * b['fraction']:.1f} % | {_fmt(b['psnr'], 2)} | "
+                f"{_fmt(b['ssim'])} |"
+            )
+    lines += [
+        "",
+        "| view | restoration PSNR / SSIM / LPIPS | reconstruction PSNR / SSIM / LPIPS |",
+        "|---|---|---|",
+    ]
+    for row in report["per_view"]:
+        cells = []
+        for name in ("restoration", "reconstruction"):
+            r = row.get(name)
+            cells.append(
+                "n/a" if r is None else f"{_fmt(r['psnr'], 2)} / {_fmt(r['ssim'])} / {_fmt(r['lpips'])}"
+            )
+        lines.append(f"| {row['name']} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines) + "\n"
+
+
+def _rgb(img: torch.Tensor) -> np.ndarray:
+    return (img.detach().float().cpu().numpy().clip(0, 1) * 255 + 0.5).astype(np.uint8)  # [H, W, 3]
+
+
+def _turbo(t: torch.Tensor) -> np.ndarray:
+    x = (t[..., 0].detach().float().cpu().numpy().clip(0, 1) * 255).astype(np.uint8)  # [H, W]
+    return cv2.applyColorMap(x, cv2.COLORMAP_TURBO)[..., ::-1].copy()
+
+
+def _labelled(img: np.ndarray, label: str) -> np.ndarray:
+    band = np.full((PANEL_LABEL_HEIGHT, img.shape[1], 3), 255, np.uint8)
+    cv2.putText(
+        band, label, (3, PANEL_LABEL_HEIGHT - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA
+    )
+    return np.concatenate([band, img], axis=0)
+
+
+def side_by_side(view: ViewRender) -> np.ndarray:
+    """hazy | ours clean | reference | transmittance, captioned; [H + 16, 4 W, 3] uint8 RGB.
+
+    The hazy panel is the input photo, or the method's hazy render where the view's input is a clean
+    reference; a missing reference is a grey panel.
+    """
+    out = view.outputs
+    clean = _rgb(out["clean"])
+    if view.hazy_input is not None:
+        hazy, hazy_label = _rgb(view.hazy_input), "hazy input"
+    else:
+        hazy, hazy_label = _rgb(out["hazy"]), "hazy (render)"
+    ref = _rgb(view.reference) if view.reference is not None else np.full_like(clean, 128)
+    panels = [
+        _labelled(hazy, hazy_label),
+        _labelled(clean, "ours clean"),
+        _labelled(ref, "reference" if view.reference is not None else "no reference"),
+        _labelled(_turbo(out["transmittance"]), "transmittance"),
+    ]
+    return np.concatenate(panels, axis=1)
