@@ -238,13 +238,19 @@ class GaussianPipeline(Pipeline):
             self.model.attribute("medium").requires_grad_(on)
 
     # ----------------------------------------------------------------------------- training
+    def training_target(self, idx: int) -> Tensor:
+        """The image view ``idx`` is fitted to: its input, or its dehazed version (``input_dehaze``)."""
+        if idx in self._targets:
+            return self._targets[idx].float() / 255.0  # [H, W, 3]
+        return self.datamanager.image(idx)
+
     def train_loss(self, step: int) -> StepResult:
         cfg, dm = self.config, self.datamanager
         stage = self.stage_at(step)
         self.stage.fill_(stage)
         self._set_medium_trainable(self._medium_trainable(step))
         idx = dm.train_index(step)
-        target = self._targets[idx].float() / 255.0 if self._targets else dm.image(idx)  # [H, W, 3]
+        target = self.training_target(idx)  # [H, W, 3]
         bg = self.background
         if cfg.random_background:
             bg = torch.rand(3, generator=self._gen).to(bg)

@@ -9,10 +9,10 @@ from pipelines.trainer import Trainer
 from tridehaze_plugin.cli.train import parse_args
 
 
-def make_scene(root: Path, num_views: int = 6) -> Path:
+def make_scene(root: Path, num_views: int = 6, width: int = 40, height: int = 30) -> Path:
     generate_scene(
-        SceneConfig(output_dir=root, layout="courtyard", haze="patchy", seed=2, num_views=num_views, width=40,
-                    height=30, samples=16, supersample=1, num_points=300, test_every=3)
+        SceneConfig(output_dir=root, layout="courtyard", haze="patchy", seed=2, num_views=num_views, width=width,
+                    height=height, samples=16, supersample=1, num_points=300, test_every=3)
     )  # fmt: skip
     return root
 

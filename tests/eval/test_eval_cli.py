@@ -1,0 +1,120 @@
+"""td-eval and td-ablate end to end on tiny runs: files, keys, images, errors, resumption."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import pytest
+
+from tridehaze_plugin.cli.eval import main as eval_main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _cli(module: str, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args], capture_output=True, text=True, cwd=ROOT,
+        env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})}, timeout=300,
+    )  # fmt: skip
+
+
+def test_td_eval_writes_json_markdown_and_side_by_side(tri_run, need_lpips, tmp_path):
+    out = tmp_path / "res" / "tri.json"
+    eval_main(["--load-config", str(tri_run), "--output-path", str(out)])
+    report = json.loads(out.read_text())
+    for protocol in ("restoration", "reconstruction"):
+        assert set(report[protocol]) >= {"psnr", "ssim", "lpips", "views"}
+        assert 0 < report[protocol]["lpips"] < 1 and 5 < report[protocol]["psnr"] < 60
+    assert report["reconstruction"]["composite"] is True and report["binned"]["source"] == "model"
+    assert report["lpips"]["available"] is True and report["step"] == 6
+    assert len(report["per_view"]) == report["views"] == 2
+    md = out.with_suffix(".md").read_text()
+    assert "| restoration |" in md and "| low (T <= 0.4) |" in md
+    images = sorted((tmp_path / "res" / "tri_images").glob("*.png"))
+    assert len(images) == 2
+    img = cv2.imread(str(images[0]))
+    assert img.shape == (36 + 16, 4 * 48, 3)  # caption band; hazy | clean | reference | transmittance
+
+
+def test_td_eval_default_path_and_plain_method(plain_run):
+    eval_main(["--load-config", str(plain_run), "--lpips", "off", "--no-images"])
+    report = json.loads((plain_run.parent / "eval" / "test.json").read_text())
+    assert report["reconstruction"]["composite"] is False  # its plain render against the hazy input
+    assert report["binned"]["source"] == "reference" and report["restoration"]["lpips"] is None
+    assert "turned off" in report["lpips"]["reason"]
+    assert not (plain_run.parent / "eval" / "test_images").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "env", "expect"),
+    [
+        (["--output-path", "x.txt"], {}, "--output-path must end in .json"),
+        (["--lpips", "on"], {"TRIDEHAZE_LPIPS_WEIGHTS": "/nonexistent/alexnet.ckpt"}, "LPIPS is unavailable"),
+        (["--split", "nope"], {}, "nope"),
+    ],
+)
+def test_td_eval_bad_input_is_one_line_exit_2(tri_run, args, env, expect):
+    before = (
+        sorted(p.name for p in (tri_run.parent / "eval").glob("*"))
+        if (tri_run.parent / "eval").exists()
+        else []
+    )
+    r = _cli("tridehaze_plugin.cli.eval", "--load-config", str(tri_run), *args, env=env)
+    assert r.returncode == 2, r.stderr
+    assert expect in r.stderr and "Traceback" not in r.stderr
+    after = (
+        sorted(p.name for p in (tri_run.parent / "eval").glob("*"))
+        if (tri_run.parent / "eval").exists()
+        else []
+    )
+    assert after == before  # nothing written
+
+
+def test_td_eval_missing_run_is_clear(tmp_path):
+    r = _cli("tridehaze_plugin.cli.eval", "--load-config", str(tmp_path / "nope" / "config.yml"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "config" in r.stderr.lower()
+
+
+def test_td_ablate_runs_resumes_and_tabulates(eval_scene, tmp_path):
+    out = tmp_path / "abl"
+    train_args = "--pipeline.warmup-steps 2 --pipeline.model.sh-degree 0 --pipeline.rasterizer.backend torch"
+    args = ["--scenes", str(eval_scene), "--max-steps", "4", "--output-dir", str(out), "--families", "schedule",
+            "--jobs", "2", "--lpips", "off", f"--train-args={train_args}"]  # fmt: skip
+    r = _cli("tridehaze_plugin.cli.ablate", *args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = list(csv.DictReader((out / "ablation.csv").open()))
+    assert sorted(row["variant"] for row in rows) == ["full", "no-tgc", "tgc-start"]
+    assert all(row["status"] == "ok" and float(row["restoration_psnr"]) > 5 for row in rows)
+    md = (out / "ablation.md").read_text()
+    assert "### schedule" in md and "TGC from the start" in md and "tgc-start < no-tgc" in md
+    assert (out / "ablation.png").stat().st_size > 1000
+    claims = json.loads((out / "ablation.json").read_text())["claims"]
+    assert {c["family"] for c in claims} == {"schedule"} and all(c["agrees"] in (True, False) for c in claims)
+
+    # a finished run is skipped; a run with a checkpoint but no result is resumed, not restarted
+    result = out / "results" / eval_scene.name / "no-tgc.json"
+    result.unlink()
+    r = _cli("tridehaze_plugin.cli.ablate", *args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stdout.count("finished earlier") == 2 and result.is_file()
+    log = (out / "logs" / f"{eval_scene.name}__no-tgc.log").read_text()
+    assert "--resume" in log
+
+    # other settings (more steps) invalidate the stored results
+    r = _cli("tridehaze_plugin.cli.ablate", *[a if a != "4" else "5" for a in args], "--dry-run")
+    assert r.returncode == 0 and r.stdout.count("to run") == 3
+
+
+def test_td_ablate_bad_input(tmp_path):
+    r = _cli("tridehaze_plugin.cli.ablate", "--scenes", str(tmp_path / "missing"))
+    assert r.returncode == 2 and "scene folder not found" in r.stderr and "Traceback" not in r.stderr
+    (tmp_path / "a" / "s").mkdir(parents=True)
+    (tmp_path / "b" / "s").mkdir(parents=True)
+    r = _cli("tridehaze_plugin.cli.ablate", "--scenes", str(tmp_path / "a" / "s"), str(tmp_path / "b" / "s"))
+    assert r.returncode == 2 and "must differ" in r.stderr

@@ -1,0 +1,120 @@
+"""The evaluation protocols on a scripted pipeline whose errors are known exactly."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from components.data.config import DataConfig
+from components.data.images import read_depth
+from components.data.loader import load_scene
+from pipelines.base import Pipeline, StepResult
+from pipelines.datamanager import DataManager
+from pipelines.evaluate import REFERENCE_T_KEY, evaluate, evaluate_split
+
+DELTA = 0.1
+"""Error added to the clean render inside the low-visibility third of each view."""
+
+
+class ScriptedPipeline(Pipeline):
+    """Renders the references themselves, plus DELTA in the right third; T = 0.9 | 0.5 | 0.2 by thirds."""
+
+    def __init__(self, dm: DataManager, medium: bool = True) -> None:
+        super().__init__()
+        self.dm = dm
+        self.medium = medium
+        self.dummy = nn.Parameter(torch.zeros(1))
+
+    def train_loss(self, step: int) -> StepResult:
+        raise NotImplementedError
+
+    def param_groups(self):
+        return {}
+
+    def output_names(self) -> list[str]:
+        return ["clean", "hazy", "transmittance"]
+
+    @property
+    def composites_medium(self) -> bool:
+        return self.medium
+
+    def _index(self, camera) -> int:
+        return int(torch.argmin((self.dm.cameras.camtoworlds - camera.camtoworlds).abs().sum((1, 2))))
+
+    def render(self, camera, step=None):
+        idx = self._index(camera)
+        ref = self.dm.clean_image(idx)  # [H, W, 3]
+        H, W = ref.shape[:2]
+        third = W // 3
+        T = torch.full((H, W, 1), 0.9)
+        T[:, third : 2 * third] = 0.5
+        T[:, 2 * third :] = 0.2
+        clean = ref.clone()
+        clean[:, 2 * third :] = (clean[:, 2 * third :] + DELTA).clamp(max=1.0)
+        return {"clean": clean, "hazy": self.dm.image(idx), "transmittance": T}
+
+
+@pytest.fixture(scope="module")
+def dm(eval_scene) -> DataManager:
+    return DataManager(load_scene(DataConfig(data=eval_scene)), torch.device("cpu"))
+
+
+def test_stable_keys_and_perfect_protocols(dm):
+    report = evaluate(ScriptedPipeline(dm), dm, "test")
+    assert set(report) >= {"split", "views", "restoration", "reconstruction", "binned", "per_view"}
+    assert report["views"] == len(dm.scene.test_indices) == len(report["per_view"]) >= 2
+    assert set(report["restoration"]) >= {"psnr", "ssim", "lpips"}
+    rec = report["reconstruction"]
+    assert rec["psnr"] == 100.0 and rec["ssim"] == pytest.approx(1.0, abs=1e-6) and rec["composite"] is True
+    names = dm.scene.names()
+    assert [r["name"] for r in report["per_view"]] == [names[i] for i in dm.scene.test_indices]
+
+
+def test_binned_metrics_pool_pixels_per_bin(dm):
+    report = evaluate(ScriptedPipeline(dm), dm, "test", bins="model")
+    binned = report["binned"]
+    assert binned["source"] == "model"
+    W = dm.image(dm.scene.test_indices[0]).shape[1]
+    assert binned["high"]["fraction"] == pytest.approx((W // 3) / W)
+    assert binned["high"]["psnr"] == 100.0 and binned["mid"]["psnr"] == 100.0
+    # the low bin's error: DELTA except where the reference is already near 1 (clamped), pooled
+    sq, n = 0.0, 0
+    for i in dm.scene.test_indices:
+        ref = dm.clean_image(i)[:, 2 * (W // 3) :]
+        sq += float((((ref + DELTA).clamp(max=1.0) - ref) ** 2).mean(-1).sum())
+        n += ref.shape[0] * ref.shape[1]
+    assert binned["low"]["psnr"] == pytest.approx(-10 * math.log10(sq / n), abs=1e-3)
+    assert binned["low"]["ssim"] < binned["high"]["ssim"]
+    assert report["restoration"]["psnr"] < 100.0
+
+
+def test_reference_bins_and_no_medium(dm):
+    report = evaluate(ScriptedPipeline(dm, medium=False), dm, "test")  # auto: no medium -> reference maps
+    binned = report["binned"]
+    assert binned["source"] == "reference" and report["reconstruction"]["composite"] is False
+    t = np.concatenate(
+        [read_depth(dm.scene.extra_paths[REFERENCE_T_KEY][i]).ravel() for i in dm.scene.test_indices]
+    )
+    assert binned["low"]["fraction"] == pytest.approx(float((t <= 0.4).mean()), abs=1e-6)
+    assert evaluate(ScriptedPipeline(dm, medium=False), dm, "test", bins="model")["binned"] is None
+    assert evaluate(ScriptedPipeline(dm), dm, "test", bins="none")["binned"] is None
+
+
+def test_lpips_is_zero_for_a_perfect_render(dm, need_lpips):
+    from components.metrics.lpips import load_lpips
+
+    net = load_lpips("alex")
+    report = evaluate(ScriptedPipeline(dm), dm, "test", lpips_fn=net)
+    assert report["reconstruction"]["lpips"] == 0.0  # hazy render == input
+    assert 0.0 < report["restoration"]["lpips"] < 1.0
+
+
+def test_quick_numbers_match_the_full_protocol(dm):
+    quick = evaluate_split(ScriptedPipeline(dm), dm, "test")
+    full = evaluate(ScriptedPipeline(dm), dm, "test")
+    assert quick["restoration_psnr"] == pytest.approx(full["restoration"]["psnr"])
+    assert quick["reconstruction_ssim"] == pytest.approx(full["reconstruction"]["ssim"])
