@@ -30,25 +30,39 @@ class MethodSpec:
         return cfg
 
 
+def method(
+    name: str, description: str
+) -> Callable[[Callable[[], TrainerConfig]], Callable[[], TrainerConfig]]:
+    """Decorator registering a config factory as the method ``name`` (the factory is returned as is)."""
+
+    def wrap(factory: Callable[[], TrainerConfig]) -> Callable[[], TrainerConfig]:
+        register("method", name, MethodSpec(name=name, description=description, config_factory=factory))
+        return factory
+
+    return wrap
+
+
+@method(
+    "vanilla-gs",
+    (
+        "Haze-agnostic 3D Gaussian splatting (L1 + SSIM on the input views). "
+        "It reproduces haze in the scene: the baseline for dehazing methods."
+    ),
+)
 def vanilla_gs() -> TrainerConfig:
     """Haze-agnostic 3D Gaussian splatting: the baseline every dehazing method is compared with."""
     return TrainerConfig(method_name="vanilla-gs")
 
 
-register(
-    "method",
-    "vanilla-gs",
-    MethodSpec(
-        name="vanilla-gs",
-        description=(
-            "Haze-agnostic 3D Gaussian splatting (L1 + SSIM on the input views). "
-            "It reproduces haze in the scene: the baseline for dehazing methods."
-        ),
-        config_factory=vanilla_gs,
+@method(
+    "tri-dehaze",
+    (
+        "Tri-DehazeGS: clean 3D Gaussians and a view-shared tri-plane medium (extinction + "
+        "direction-dependent light), ray-marched and composited I = J*T + S; Stage I fits both "
+        "with depth and dark-channel priors, Stage II freezes the medium and compensates the "
+        "clean branch's gradient by 1/T (MD-TGC)."
     ),
 )
-
-
 def tri_dehaze() -> TrainerConfig:
     """Tri-DehazeGS: clean Gaussians + a tri-plane medium, composited I = J*T + S, two stages.
 
@@ -68,58 +82,28 @@ def tri_dehaze() -> TrainerConfig:
     return replace(base, method_name="tri-dehaze", pipeline=pipeline)
 
 
-register(
-    "method",
-    "tri-dehaze",
-    MethodSpec(
-        name="tri-dehaze",
-        description=(
-            "Tri-DehazeGS: clean 3D Gaussians and a view-shared tri-plane medium (extinction + "
-            "direction-dependent light), ray-marched and composited I = J*T + S; Stage I fits both "
-            "with depth and dark-channel priors, Stage II freezes the medium and compensates the "
-            "clean branch's gradient by 1/T (MD-TGC)."
-        ),
-        config_factory=tri_dehaze,
+@method(
+    "dcp-gs",
+    (
+        "Restoration-assisted baseline: every training view is dehazed on its own by the dark "
+        "channel prior (guided-filter refined transmittance), then vanilla 3DGS is trained on them."
     ),
 )
-
-
 def dcp_gs() -> TrainerConfig:
     """Restoration-assisted baseline: dark-channel dehazed inputs, then vanilla 3DGS."""
     base = vanilla_gs()
     return replace(base, method_name="dcp-gs", pipeline=replace(base.pipeline, input_dehaze="dcp"))
 
 
-register(
-    "method",
-    "dcp-gs",
-    MethodSpec(
-        name="dcp-gs",
-        description=(
-            "Restoration-assisted baseline: every training view is dehazed on its own by the dark "
-            "channel prior (guided-filter refined transmittance), then vanilla 3DGS is trained on them."
-        ),
-        config_factory=dcp_gs,
+@method(
+    "tri-dehaze-constant",
+    (
+        "Tri-DehazeGS with a homogeneous medium (one extinction and one direction-dependent "
+        "light for the whole scene) instead of the tri-plane field: the constant-medium baseline."
     ),
 )
-
-
 def tri_dehaze_constant() -> TrainerConfig:
     """Tri-DehazeGS with a homogeneous medium: the paper's constant-medium ablation."""
     base = tri_dehaze()
     pipeline = replace(base.pipeline, medium=replace(base.pipeline.medium, backend="constant"))
     return replace(base, method_name="tri-dehaze-constant", pipeline=pipeline)
-
-
-register(
-    "method",
-    "tri-dehaze-constant",
-    MethodSpec(
-        name="tri-dehaze-constant",
-        description=(
-            "Tri-DehazeGS with a homogeneous medium (one extinction and one direction-dependent "
-            "light for the whole scene) instead of the tri-plane field: the constant-medium baseline."
-        ),
-        config_factory=tri_dehaze_constant,
-    ),
-)
