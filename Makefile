@@ -9,7 +9,7 @@ TORCH_SPEC ?= torch==2.13.0
 STAMP := $(VENV)/.tridehaze-installed
 BENCH_DATA ?= ../shared/data/real/statue
 
-.PHONY: demo test lint install bench clean-venv
+.PHONY: demo test lint install bench clean-venv browser-deps
 
 install: $(STAMP)
 
@@ -23,8 +23,12 @@ $(STAMP): pyproject.toml Makefile
 demo: $(STAMP)
 	$(BIN)/td-train tri-dehaze --max-steps 1500 --output-dir outputs
 
-test: $(STAMP)
+test: $(STAMP) browser-deps
 	$(BIN)/python -m pytest
+
+# Debian chromium + playwright-core for the viewer's real-browser test (installed only when missing)
+browser-deps:
+	bash tests/viewer/install_browser.sh
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

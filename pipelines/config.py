@@ -15,6 +15,53 @@ from tridehaze_plugin.errors import ConfigError
 
 
 @dataclass
+class ViewerConfig:
+    """The live browser viewer (``--vis viewer`` in td-train, always in td-viewer)."""
+
+    host: str = "127.0.0.1"
+    """Address to serve on; ``0.0.0.0`` lets other machines connect (no authentication: trusted
+    networks only)."""
+    port: int = 7007
+    """TCP port of the viewer (HTTP and websocket); 0 picks a free one. A port in use is an error."""
+    max_resolution: int = 512
+    """Longest image side, in pixels, of a render while the camera rests (never above the browser's
+    canvas)."""
+    moving_resolution: int = 160
+    """Longest image side while the camera moves, so that dragging stays responsive."""
+    rest_seconds: float = 0.25
+    """A camera unchanged for this long counts as resting and gets a full-resolution render."""
+    render_share: float = 0.2
+    """Most of the wall time viewer renders may take while training runs (training waits during a
+    render), so training slows by at most 1 / (1 - share); 1 disables the limit."""
+    refresh_seconds: float = 2.0
+    """While training runs, re-render a resting view at most this often to show progress."""
+    jpeg_quality: int = 85
+    """JPEG quality of the frames sent to the browser."""
+    thumbnail_size: int = 64
+    """Longest side of the training images shown in the camera frustums; 0: frustums without images."""
+    wait_at_end: bool = True
+    """td-train ``--vis viewer``: keep serving after training ends until Ctrl-C (the run is complete
+    either way). ``--vis auto`` never waits, so scripts run from a terminal still end."""
+
+    def check_values(self, prefix: str = "--viewer.") -> None:
+        """``prefix``: how the flags are spelled (``--`` in td-viewer, which flattens them)."""
+        if not 0 <= self.port <= 65535:
+            raise ConfigError(f"{prefix}port must be in 0..65535, got {self.port}")
+        for name in ("max_resolution", "moving_resolution"):
+            if getattr(self, name) < 16:
+                raise ConfigError(
+                    f"{prefix}{name.replace('_', '-')} must be >= 16, got {getattr(self, name)}"
+                )
+        if not 0 < self.render_share <= 1:
+            raise ConfigError(f"{prefix}render-share must be in (0, 1], got {self.render_share}")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"{prefix}jpeg-quality must be in 1..100, got {self.jpeg_quality}")
+        for name in ("rest_seconds", "refresh_seconds", "thumbnail_size"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{prefix}{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
+
+
+@dataclass
 class TrainerConfig:
     """Everything one training run needs; methods are presets of this."""
 
@@ -34,8 +81,11 @@ class TrainerConfig:
     """Number of optimisation steps."""
     seed: int = 42
     """Random seed for initialisation, view order and anything stochastic."""
-    vis: Literal["none"] = "none"
-    """Visualisation: ``none`` (progress bar only). The live viewer is added by the viewer component."""
+    vis: Literal["auto", "none", "viewer"] = "auto"
+    """Visualisation: ``viewer`` (live browser viewer, see --viewer.*), ``none`` (progress bar only),
+    ``auto``: the viewer when stdout is a terminal, else none (pipes, CI, tests)."""
+    viewer: ViewerConfig = field(default_factory=ViewerConfig)
+    """Options of the live viewer (used with --vis viewer or auto)."""
     device: str = "auto"
     """Torch device: ``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda`` or ``cuda:N``."""
     threads: int | None = None
@@ -59,6 +109,7 @@ class TrainerConfig:
             _positive("--threads", self.threads)
         if self.device not in ("auto", "cpu") and not self.device.startswith("cuda"):
             raise ConfigError(f"--device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
+        self.viewer.check_values()
         self.pipeline.check_values()
 
 

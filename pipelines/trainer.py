@@ -5,6 +5,7 @@ It knows only the :class:`~pipelines.base.Pipeline` contract, never a concrete m
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -29,6 +30,7 @@ from pipelines.datamanager import DataManager
 from pipelines.evaluate import evaluate_split
 from pipelines.optimizers import Optimizers
 from pipelines.run_config import save_config, write_text_atomic
+from pipelines.viewer import check_port_free, start_training_viewer
 from tridehaze_plugin.errors import ConfigError, UserError
 
 
@@ -113,9 +115,14 @@ class Trainer:
         self.start_step = 0
         self.bad_steps = 0
         self.skipped_steps = 0
+        self.viewer = None
+        """The live viewer (``--vis``): it renders under ``viewer.lock`` and sees every step via
+        ``viewer.update``, which blocks while paused from the browser."""
 
     def setup(self) -> None:
         cfg = self.config
+        if cfg.vis == "viewer":  # a port in use fails now, not after loading data and making a run folder
+            check_port_free(cfg.viewer.host, cfg.viewer.port)
         if cfg.threads is not None:
             torch.set_num_threads(cfg.threads)
         self.device = resolve_device(cfg.device)
@@ -150,6 +157,7 @@ class Trainer:
         self.console.print(f"run folder: {self.run_dir}")
         if self.start_step:
             self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
+        self.viewer = start_training_viewer(cfg, self.pipeline, self.datamanager, self.console)
 
     def _restore(self) -> None:
         """Load the newest checkpoint of the run being resumed into the freshly built pipeline."""
@@ -177,7 +185,22 @@ class Trainer:
     def train(self) -> TrainResult:
         if not hasattr(self, "pipeline"):
             self.setup()
+        try:
+            result = self._train()
+            if self.viewer is not None:
+                self.viewer.finish()
+                if self.config.vis == "viewer" and self.config.viewer.wait_at_end:
+                    self.console.print(f"viewer still serving {self.viewer.url}; Ctrl-C to exit")
+                    self.viewer.serve_forever()
+            return result
+        finally:
+            if self.viewer is not None:
+                self.viewer.close()
+
+    def _train(self) -> TrainResult:
         cfg, pipe, opt = self.config, self.pipeline, self.optimizers
+        view = self.viewer
+        lock = view.lock if view is not None else contextlib.nullcontext()
         log_path = self.run_dir / "logs" / "metrics.jsonl"
         log_path.parent.mkdir(parents=True, exist_ok=True)
         start = time.perf_counter()
@@ -203,7 +226,8 @@ class Trainer:
             try:
                 for step in range(self.start_step, cfg.max_steps):
                     t0 = time.perf_counter()
-                    result, ok = optimization_step(pipe, opt, step, accept=self._finite)
+                    with lock:
+                        result, ok = optimization_step(pipe, opt, step, accept=self._finite)
                     if not ok:
                         self._skip_bad_step(step)
                         done = step + 1
@@ -219,6 +243,8 @@ class Trainer:
                         task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its
                     )
                     done = step + 1
+                    if view is not None:
+                        view.update(done, {**metrics, "its": its, **pipe.stats()})
                     if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
                         row = {
                             "step": done,
@@ -252,7 +278,8 @@ class Trainer:
             final["skipped_nonfinite_steps"] = self.skipped_steps
         final.update({f"train_{k}": v for k, v in metrics.items()})
         if cfg.eval_at_end and self.datamanager.test_indices:
-            final.update(evaluate_split(pipe, self.datamanager, "test"))
+            with lock:
+                final.update(evaluate_split(pipe, self.datamanager, "test"))
         write_text_atomic(self.run_dir / "eval" / "metrics.json", json.dumps(final, indent=2))
         self._print_summary(final)
         return TrainResult(self.run_dir, cfg.max_steps, seconds, final)
