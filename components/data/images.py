@@ -15,10 +15,12 @@ Conventions:
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -64,10 +66,27 @@ def _read_bytes(path: Path, what: str) -> np.ndarray:
     return buf
 
 
+@contextlib.contextmanager
+def _opencv_silent() -> Iterator[None]:
+    """Mute OpenCV's own log lines (``[ERROR:0@...] readHeader ...``) on stderr: a file it cannot
+    decode is reported once, as a DataError."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None:
+        yield
+        return
+    before = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        log.setLogLevel(before)
+
+
 def decode_raw(path: Path, what: str = "image") -> np.ndarray:
     """Decode an image file as stored: [H, W] or [H, W, C] (BGR/BGRA order), any bit depth."""
     buf = _read_bytes(path, what)
-    arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    with _opencv_silent():
+        arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if arr is None or arr.size == 0:
         raise DataError(
             f"{what} is corrupt or not a supported image format",

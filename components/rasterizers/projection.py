@@ -88,6 +88,12 @@ def project_gaussians(
         *z.shape, 2, 3
     )  # [C, N, 2, 3]
     cov2d = J @ covars_c @ J.transpose(-1, -2)  # [C, N, 2, 2]
+    # past float32's range (scale * fx / z beyond ~1e19) the 2D covariance overflows: project those
+    # with a zero covariance instead, so no inf reaches autograd (they are culled below)
+    fits = torch.isfinite(cov2d.detach()).all(dim=-1).all(dim=-1)  # [C, N]
+    if not bool(fits.all()):
+        covars_c = torch.where(fits[..., None, None], covars_c, torch.zeros_like(covars_c))
+        cov2d = J @ covars_c @ J.transpose(-1, -2)
     a = cov2d[..., 0, 0] + eps2d
     b = 0.5 * (cov2d[..., 0, 1] + cov2d[..., 1, 0])
     c = cov2d[..., 1, 1] + eps2d
@@ -104,7 +110,7 @@ def project_gaussians(
         radius = torch.ceil(3.0 * torch.sqrt(lam)).clamp_max(2.0**30)  # int32-safe
         mx, my = means2d[..., 0], means2d[..., 1]
         onscreen = (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
-        keep = in_depth & det_ok & (radius > 0) & onscreen
+        keep = in_depth & det_ok & fits & (radius > 0) & onscreen
         radii = torch.where(keep, radius, torch.zeros_like(radius)).to(torch.int32)
         diag = torch.stack([a, c], dim=-1).detach()
     return Projected(means2d=means2d, conics=conics, depths=z, radii=radii, cov2d_diag=diag)

@@ -18,6 +18,7 @@ a prior no real capture has.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
@@ -91,10 +92,10 @@ class SceneConfig:
                 raise ConfigError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if not 1.0 <= self.fov_deg <= 170.0:
             raise ConfigError(f"--fov-deg must be in [1, 170], got {self.fov_deg}")
-        if self.beta_scale < 0:
-            raise ConfigError(f"--beta-scale must be >= 0, got {self.beta_scale}")
-        if self.num_points < 0 or self.point_noise < 0:
-            raise ConfigError("--num-points and --point-noise must be >= 0")
+        if not (math.isfinite(self.beta_scale) and self.beta_scale >= 0):
+            raise ConfigError(f"--beta-scale must be a finite number >= 0, got {self.beta_scale}")
+        if self.num_points < 0 or not (math.isfinite(self.point_noise) and self.point_noise >= 0):
+            raise ConfigError("--num-points and --point-noise must be finite and >= 0")
         if self.point_colors not in ("clean", "hazy"):
             raise ConfigError(f"--point-colors must be clean or hazy, got {self.point_colors!r}")
         if self.test_every < 0 or self.test_every == 1:

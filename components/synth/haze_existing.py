@@ -96,8 +96,8 @@ class HazeConfig:
             raise ConfigError(f"--airlight must be three values in [0, 1], got {self.airlight}")
         if not 0.0 <= self.heterogeneous < 1.0:
             raise ConfigError(f"--heterogeneous must be in [0, 1), got {self.heterogeneous}")
-        if self.feature_size <= 0:
-            raise ConfigError(f"--feature-size must be > 0, got {self.feature_size}")
+        if not (math.isfinite(self.feature_size) and self.feature_size > 0):
+            raise ConfigError(f"--feature-size must be a finite number > 0, got {self.feature_size}")
         if not 0.0 <= self.min_alpha <= 1.0:
             raise ConfigError(f"--min-alpha must be in [0, 1], got {self.min_alpha}")
         if self.threads < 0:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import re
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn
 
-from tridehaze_plugin.errors import EXIT_USER_ERROR, UserError
+from tridehaze_plugin.errors import EXIT_USER_ERROR, ConfigError, UserError
 
 
 def fail(message: str) -> NoReturn:
@@ -26,3 +29,36 @@ def run_cli(main: Callable[[], object]) -> None:
     except BrokenPipeError:  # output piped into e.g. `head`: stop quietly like other Unix tools
         sys.stderr.close()
         raise SystemExit(141) from None
+
+
+def check_output_folder(path: Path, flag: str = "--output-dir") -> None:
+    """ConfigError unless ``path`` is a folder, or one can be created there, that we may write to.
+
+    Checked before any work starts, so a typo fails in a second and not after training or rendering.
+    """
+    target = Path(os.path.expanduser(str(path))).absolute()
+    probe = target
+    while not probe.exists() and probe != probe.parent:  # the nearest part of the path that exists
+        probe = probe.parent
+    if not probe.is_dir():
+        if probe == target:
+            raise ConfigError(f"{flag} is a file, not a folder", where=str(target), fix="pass a folder path")
+        raise ConfigError(
+            f"{flag} cannot be created: {probe} is a file", where=str(target), fix="pick another folder"
+        )
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ConfigError(
+            f"{flag} is not writable", where=str(probe), fix="pick another folder or fix its permissions"
+        )
+
+
+def device_arg(name: str, cuda_available: bool, flag: str = "--device") -> str:
+    """``auto`` -> ``cuda`` or ``cpu``; ``cpu``, ``cuda`` and ``cuda:N`` as given; anything else, or
+    CUDA without a GPU, is a ConfigError (not a confusing failure later, e.g. while loading a checkpoint)."""
+    if name == "auto":
+        return "cuda" if cuda_available else "cpu"
+    if name != "cpu" and not re.fullmatch(r"cuda(:\d+)?", name):
+        raise ConfigError(f"{flag} must be auto, cpu, cuda or cuda:N, got {name!r}")
+    if name.startswith("cuda") and not cuda_available:
+        raise ConfigError(f"{flag} {name} was asked for but CUDA is not available", fix=f"use {flag} cpu")
+    return name

@@ -26,8 +26,7 @@ from pipelines.eval_report import markdown_report, side_by_side
 from pipelines.evaluate import BinSource, ViewRender, evaluate
 from pipelines.run_config import write_text_atomic
 from pipelines.run_loader import load_run
-from pipelines.trainer import resolve_device
-from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.cli.common import device_arg, run_cli
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -80,13 +79,13 @@ def main(argv: list[str] | None = None) -> None:
         )
     if out_json.is_dir():
         raise ConfigError("--output-path is a folder", where=str(out_json), fix="pass a .json file path")
-    device = resolve_device(args.device)
-    lpips_net, lpips_info = _lpips(args.lpips)
-    run = load_run(args.load_config, device=str(device))
+    device = device_arg(args.device, torch.cuda.is_available())
+    run = load_run(args.load_config, device=device)
     if not run.datamanager.scene.indices(args.split):
         raise ConfigError(
             f"the {args.split} split of this run's dataset is empty", fix="use --split train or all"
         )
+    lpips_net, lpips_info = _lpips(args.lpips)  # after the run loaded: its errors come first, alone
     lpips_fn = None
     if lpips_net is not None:
         lpips_net = lpips_net.to(device)

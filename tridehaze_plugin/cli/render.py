@@ -45,7 +45,7 @@ from rich.progress import (
 from components.data.images import write_array_atomic, write_bytes_atomic, write_image_atomic
 from pipelines.camera_paths import make_path
 from pipelines.run_loader import load_run
-from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.cli.common import check_output_folder, device_arg, run_cli
 from tridehaze_plugin.errors import ConfigError, UserError
 
 SIDE_BY_SIDE = "side-by-side"
@@ -112,8 +112,7 @@ def to_png(value: torch.Tensor, vrange: tuple[float, float] | None = None) -> np
 
 
 def _device(name: str) -> str:
-    device = "cuda" if name == "auto" and torch.cuda.is_available() else name
-    return "cpu" if device == "auto" else device
+    return device_arg(name, torch.cuda.is_available())
 
 
 def _check(args: RenderArgs, available: list[str]) -> list[str]:
@@ -238,6 +237,8 @@ def render_path(args: RenderArgs, run, wanted: list[str], indices: list[int]) ->
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(RenderArgs, args=sys.argv[1:] if argv is None else argv, prog="td-render")
+    check_output_folder(args.output_dir)
+    device = _device(args.device)
     if args.path != "views":
         if args.num_frames < 2:
             raise ConfigError(
@@ -245,7 +246,7 @@ def main(argv: list[str] | None = None) -> None:
             )
         if not args.fps > 0:
             raise ConfigError(f"--fps must be positive, got {args.fps}", fix="pass e.g. --fps 30")
-    run = load_run(args.load_config, device=_device(args.device))
+    run = load_run(args.load_config, device=device)
     wanted = _check(args, run.pipeline.output_names())
     split = args.split or ("test" if args.path == "views" else "train")
     indices = run.datamanager.scene.indices(split)

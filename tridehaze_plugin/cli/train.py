@@ -17,7 +17,7 @@ from components.synth import demo_scene_path
 from pipelines.config import TrainerConfig
 from pipelines.run_config import load_config
 from pipelines.trainer import Trainer
-from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.cli.common import check_output_folder, run_cli
 from tridehaze_plugin.config import validate
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import Registry, load_all
@@ -69,6 +69,8 @@ def split_resume(argv: list[str]) -> tuple[Path | None, list[str]]:
 def main(argv: list[str] | None = None) -> None:
     resume, args = split_resume(sys.argv[1:] if argv is None else argv)
     cfg = parse_args(args)
+    if resume is None:  # a resumed run stays in its own folder
+        check_output_folder(cfg.output_dir)
     if cfg.dataset.data is None:
         cfg.dataset.data = demo_scene_path(cfg.dataset.cache_dir)
         print(f"no --data given: training on the built-in demo scene ({cfg.dataset.data})")

@@ -1,0 +1,387 @@
+"""Malformed input to td-train, td-eval, td-render and td-synth: exit code 2 and one clear line.
+
+Every case runs the command's entry point (all cases in one fresh process, a few again each in its
+own process to show the two agree) and checks: exit code 2, no traceback, stderr is the
+single line ``error: <what> (<where>); <how to fix>`` starting with the expected text (tyro's own
+parse errors for malformed values print a box instead: accepted, still exit 2 without a
+traceback), and a finished run folder made once for the module is byte-identical afterwards
+(same files, bytes and modification times; several cases point straight at it).
+The table is listed in docs/stability.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from rich.console import Console
+
+from pipelines.trainer import Trainer
+from tests.tiny_scenes import tiny_hazy_scene
+from tridehaze_plugin.cli.train import parse_args
+
+
+@dataclass(frozen=True)
+class Case:
+    command: str
+    """train, eval, render or synth."""
+    args: tuple[str, ...]
+    """Arguments; ``{run}``, ``{config}``, ``{scene}`` and ``{fx}`` (prepared bad inputs) are filled in."""
+    expect: str
+    """Start of the message after ``error: ``; for a tyro box, text somewhere in it."""
+    box: bool = False
+    """A tyro parse error (boxed, several lines) rather than our one-line error."""
+    env: dict[str, str] = field(default_factory=dict)
+
+
+TRAIN = ("tri-dehaze", "--output-dir", "{fx}/out", "--max-steps", "2", "--threads", "1",
+         "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end")  # fmt: skip
+EVAL = ("--lpips", "off")  # LPIPS is not the subject (see the xfail case below for why this matters)
+NO_LPIPS = {"TRIDEHAZE_LPIPS_WEIGHTS": "/missing/alexnet.ckpt"}
+
+CASES: dict[str, Case] = {
+    # ------------------------------------------------------------------------------ td-train
+    "train: missing --data folder": Case(
+        "train", (*TRAIN, "--data", "{fx}/absent"), "dataset folder not found"
+    ),
+    "train: empty dataset folder": Case(
+        "train", (*TRAIN, "--data", "{fx}/empty"), "cannot tell the dataset format"
+    ),
+    "train: corrupt image file": Case(
+        "train", (*TRAIN, "--data", "{fx}/corrupt"), "image is corrupt or not a supported image format"
+    ),
+    "train: transforms.json is not JSON": Case("train", (*TRAIN, "--data", "{fx}/not_json"), "invalid JSON"),
+    "train: image size differs from the intrinsics": Case(
+        "train", (*TRAIN, "--data", "{fx}/wrong_size"), "image is 16x12 but its camera says 32x24"
+    ),
+    "train: transform_matrix of the wrong shape": Case(
+        "train", (*TRAIN, "--data", "{fx}/bad_pose"), "transform_matrix must be a 4x4"
+    ),
+    "train: negative --max-steps": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--max-steps", "-5"), "--max-steps must be >= 1"
+    ),
+    "train: --pipeline.t-min 0": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--pipeline.t-min", "0"), "--pipeline.t-min must be in (0, 1]"
+    ),
+    "train: --pipeline.t-min 1.5": Case(
+        "train",
+        (*TRAIN, "--data", "{scene}", "--pipeline.t-min", "1.5"),
+        "--pipeline.t-min must be in (0, 1]",
+    ),
+    "train: unknown rasterizer backend": Case(
+        "train",
+        (*TRAIN, "--data", "{scene}", "--pipeline.rasterizer.backend", "vulkan"),
+        "unknown rasterizer 'vulkan'",
+    ),
+    "train: --output-dir is a file": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--output-dir", "{fx}/a_file"), "--output-dir is a file"
+    ),
+    "train: --max-steps not a number": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--max-steps", "many"), "Error parsing --max-steps", box=True
+    ),
+    "train: --resume a folder without config.yml": Case(
+        "train", ("--resume", "{fx}/no_config"), "no config.yml in the run folder to resume"
+    ),
+    "train: --resume together with --load-config": Case(
+        "train",
+        ("--resume", "{run}", "--load-config", "{config}"),
+        "--resume and --load-config exclude each other",
+    ),
+    "train: --resume with a negative --max-steps": Case(
+        "train", ("--resume", "{run}", "--max-steps", "-1"), "--max-steps must be >= 1"
+    ),
+    "train: --resume with --data pointing at a corrupt dataset": Case(
+        "train",
+        ("--resume", "{run}", "--data", "{fx}/corrupt"),
+        "image is corrupt or not a supported image format",
+    ),
+    "train: --resume a run whose checkpoint is truncated": Case(
+        "train",
+        ("--resume", "{fx}/truncated"),
+        "checkpoint is corrupt, truncated or not a tridehaze checkpoint",
+    ),
+    "train: --resume a checkpoint from another config": Case(
+        "train", ("--resume", "{fx}/other_config"), "checkpoint does not match the run's config"
+    ),
+    "train: --load-config with python tags (unsafe YAML)": Case(
+        "train", ("--load-config", "{fx}/unsafe/config.yml"), "config file is not valid YAML"
+    ),
+    # ------------------------------------------------------------------------------- td-eval
+    "eval: missing config.yml": Case(
+        "eval", ("--load-config", "{fx}/no_config/config.yml", *EVAL), "config file not found"
+    ),
+    "eval: config.yml with python tags": Case(
+        "eval", ("--load-config", "{fx}/unsafe/config.yml", *EVAL), "config file is not valid YAML"
+    ),
+    "eval: truncated checkpoint": Case(
+        "eval",
+        ("--load-config", "{fx}/truncated/config.yml", *EVAL),
+        "checkpoint is corrupt, truncated or not a tridehaze checkpoint",
+    ),
+    "eval: checkpoint from another config": Case(
+        "eval",
+        ("--load-config", "{fx}/other_config/config.yml", *EVAL),
+        "checkpoint does not match the run's config",
+    ),
+    "eval: the run's dataset is gone": Case(
+        "eval", ("--load-config", "{fx}/data_gone/config.yml", *EVAL), "dataset folder not found"
+    ),
+    "eval: --output-path not .json": Case(
+        "eval",
+        ("--load-config", "{config}", "--output-path", "{fx}/eval.txt", *EVAL),
+        "--output-path must end in .json",
+    ),
+    "eval: --output-path is a folder": Case(
+        "eval",
+        ("--load-config", "{config}", "--output-path", "{fx}/folder.json", *EVAL),
+        "--output-path is a folder",
+    ),
+    "eval: --lpips on without its weights": Case(
+        "eval", ("--load-config", "{config}", "--lpips", "on"), "LPIPS is unavailable", env=NO_LPIPS
+    ),
+    # ----------------------------------------------------------------------------- td-render
+    "render: missing config.yml": Case(
+        "render",
+        ("--load-config", "{fx}/no_config/config.yml", "--output-dir", "{fx}/r"),
+        "config file not found",
+    ),
+    "render: truncated checkpoint": Case(
+        "render",
+        ("--load-config", "{fx}/truncated/config.yml", "--output-dir", "{fx}/r"),
+        "checkpoint is corrupt, truncated or not a tridehaze checkpoint",
+    ),
+    "render: unknown output name (into the run folder)": Case(
+        "render",
+        ("--load-config", "{config}", "--outputs", "clean,normals", "--output-dir", "{run}/renders"),
+        "unknown output(s) normals for --outputs",
+    ),
+    "render: --num-frames 1 (into the run folder)": Case(
+        "render",
+        ("--load-config", "{config}", "--path", "orbit", "--num-frames", "1", "--output-dir", "{run}/v"),
+        "--num-frames must be at least 2",
+    ),
+    "render: --fps 0": Case(
+        "render",
+        ("--load-config", "{config}", "--path", "orbit", "--fps", "0", "--output-dir", "{fx}/r"),
+        "--fps must be positive",
+    ),
+    "render: --output-dir is a file": Case(
+        "render", ("--load-config", "{config}", "--output-dir", "{fx}/a_file"), "--output-dir is a file"
+    ),
+    "render: unknown --device": Case(
+        "render",
+        ("--load-config", "{config}", "--device", "tpu", "--output-dir", "{fx}/r"),
+        "--device must be auto, cpu, cuda or cuda:N",
+    ),
+    # ------------------------------------------------------------------------------ td-synth
+    "synth: scene --width 0": Case(
+        "synth", ("scene", "--output-dir", "{fx}/s", "--width", "0"), "--width must be >= 1"
+    ),
+    "synth: scene negative --num-views": Case(
+        "synth", ("scene", "--output-dir", "{fx}/s", "--num-views", "-2"), "--num-views must be >= 1"
+    ),
+    "synth: scene --output-dir is a file": Case(
+        "synth", ("scene", "--output-dir", "{fx}/a_file"), "--output-dir is a file, not a folder"
+    ),
+    "synth: scene --output-dir is the run folder": Case(
+        "synth", ("scene", "--output-dir", "{run}"), "output folder exists and is not empty"
+    ),
+    "synth: scene unknown --layout": Case(
+        "synth",
+        ("scene", "--output-dir", "{fx}/s", "--layout", "castle"),
+        "invalid choice 'castle'",
+        box=True,
+    ),
+    "synth: scene --beta-scale nan": Case(
+        "synth",
+        ("scene", "--output-dir", "{fx}/s", "--beta-scale", "nan"),
+        "--beta-scale must be a finite number",
+    ),
+    "synth: scene --test-every 1": Case(
+        "synth", ("scene", "--output-dir", "{fx}/s", "--test-every", "1"), "--test-every must be 0 or >= 2"
+    ),
+    "synth: haze --beta with --median-transmittance": Case(
+        "synth",
+        (
+            "haze",
+            "--data",
+            "{scene}",
+            "--output-dir",
+            "{fx}/h",
+            "--beta",
+            "0.1",
+            "--median-transmittance",
+            "0.4",
+        ),
+        "give either --beta or --median-transmittance, not both",
+    ),
+    "synth: haze into the run folder": Case(
+        "synth",
+        ("haze", "--data", "{scene}", "--output-dir", "{run}", "--beta", "0.1"),
+        "output folder exists and is not empty",
+    ),
+    "synth: gallery --output is a folder": Case(
+        "synth",
+        ("gallery", "--output", "{fx}/empty", "--width", "8", "--height", "8"),
+        "--output must end in .png",
+    ),
+    "eval: unknown --device": Case(
+        "eval", ("--load-config", "{config}", "--device", "tpu", *EVAL), "--device must be"
+    ),
+    "eval: missing config.yml, --lpips auto without LPIPS weights": Case(
+        "eval", ("--load-config", "{fx}/no_config/config.yml"), "config file not found", env=NO_LPIPS
+    ),
+}
+
+
+# ------------------------------------------------------------------------------------ fixtures
+def _copy_scene(scene: Path, dst: Path) -> Path:
+    shutil.copytree(scene, dst)
+    return dst
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> dict[str, Path]:
+    """A tiny dataset, a finished tri-dehaze run on it (the folder that must stay intact) and bad inputs."""
+    root = tmp_path_factory.mktemp("bad_input")
+    scene = tiny_hazy_scene(root / "scene", layout="room", haze="homogeneous", seed=4, test_every=4)
+    cfg = parse_args([
+        "tri-dehaze", "--data", str(scene), "--output-dir", str(root / "outputs"), "--max-steps", "4",
+        "--steps-per-save", "2", "--timestamp", "run", "--pipeline.rasterizer.backend", "torch",
+        "--no-eval-at-end", "--threads", "1",
+    ])  # fmt: skip
+    run = Trainer(cfg, console=Console(quiet=True)).train().run_dir
+
+    fx = root / "fx"
+    fx.mkdir()
+    (fx / "empty").mkdir()
+    (fx / "no_config").mkdir()
+    (fx / "folder.json").mkdir()
+    (fx / "a_file").write_text("not a folder\n")
+    (_copy_scene(scene, fx / "corrupt") / "images" / "0001.png").write_bytes(
+        b"\x89PNG\r\n\x1a\n but not really"
+    )
+    (_copy_scene(scene, fx / "zero_byte") / "images" / "0001.png").write_bytes(b"")
+    (_copy_scene(scene, fx / "not_json") / "transforms.json").write_text('{"frames": [')
+    cv2.imwrite(
+        str(_copy_scene(scene, fx / "wrong_size") / "images" / "0001.png"), np.zeros((12, 16, 3), np.uint8)
+    )
+    meta = json.loads((_copy_scene(scene, fx / "bad_pose") / "transforms.json").read_text())
+    meta["frames"][0]["transform_matrix"] = [[1.0, 0.0], [0.0, 1.0]]
+    (fx / "bad_pose" / "transforms.json").write_text(json.dumps(meta))
+    (fx / "unsafe").mkdir()
+    (fx / "unsafe" / "config.yml").write_text("method_name: !!python/object/apply:os.system ['echo pwned']\n")
+
+    def run_copy(name: str) -> Path:
+        return Path(shutil.copytree(run, fx / name))
+
+    newest = sorted((run_copy("truncated") / "checkpoints").glob("*.ckpt"))[-1]
+    newest.write_bytes(newest.read_bytes()[:200])
+    shutil.rmtree(run_copy("no_checkpoint") / "checkpoints")
+    text = (
+        run_copy("other_config") / "config.yml"
+    ).read_text()  # a vanilla-gs config over tri-dehaze weights
+    assert "method_name: tri-dehaze" in text and "backend: triplane" in text
+    text = text.replace("method_name: tri-dehaze", "method_name: vanilla-gs").replace(
+        "backend: triplane", "backend: none"
+    )
+    (fx / "other_config" / "config.yml").write_text(text)
+    text = (run_copy("data_gone") / "config.yml").read_text()
+    (fx / "data_gone" / "config.yml").write_text(text.replace(str(scene), str(root / "deleted_scene")))
+    return {"run": run, "config": run / "config.yml", "scene": scene, "fx": fx, "root": root}
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes | None, int]]:
+    """Every path under ``folder``: its bytes (None for a folder) and modification time."""
+    out: dict[str, tuple[bytes | None, int]] = {}
+    for p in sorted(folder.rglob("*")):
+        st = p.lstat()
+        out[str(p.relative_to(folder))] = (p.read_bytes() if p.is_file() else None, st.st_mtime_ns)
+    return out
+
+
+@pytest.fixture(scope="module")
+def pristine(world) -> dict[str, tuple[bytes | None, int]]:
+    return _snapshot(world["run"])
+
+
+def _run(case: Case, world: dict[str, Path]) -> subprocess.CompletedProcess:
+    """One case in its own process (the real entry point, as a user runs it)."""
+    args = [a.format(**{k: str(v) for k, v in world.items()}) for a in case.args]
+    env = dict(os.environ, OMP_NUM_THREADS="1", TRIDEHAZE_CACHE=str(world["root"] / "cache"), **case.env)
+    env.pop("TRIDEHAZE_PLUGINS", None)
+    return subprocess.run(
+        [sys.executable, "-m", f"tridehaze_plugin.cli.{case.command}", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=world["root"],
+        env=env,
+    )
+
+
+@pytest.fixture(scope="module")
+def batch(world) -> dict[str, subprocess.CompletedProcess]:
+    """Every case of the matrix, run one after another in a single fresh process
+    (tests/core/bad_input_batch.py: torch is imported once instead of 46 times)."""
+    cases = {
+        name: {
+            "module": c.command,
+            "args": [a.format(**{k: str(v) for k, v in world.items()}) for a in c.args],
+            "env": {"OMP_NUM_THREADS": "1", "TRIDEHAZE_CACHE": str(world["root"] / "cache"), **c.env},
+            "cwd": str(world["root"]),
+        }
+        for name, c in CASES.items()
+    }
+    spec, out = world["root"] / "cases.json", world["root"] / "results.json"
+    spec.write_text(json.dumps(cases))
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    env.pop("TRIDEHAZE_PLUGINS", None)
+    subprocess.run(
+        [sys.executable, "-m", "tests.core.bad_input_batch", str(spec), str(out)],
+        cwd=Path(__file__).resolve().parents[2], env=env, check=True, timeout=900,
+    )  # fmt: skip
+    results = json.loads(out.read_text())
+    return {n: subprocess.CompletedProcess([], r["returncode"], "", r["stderr"]) for n, r in results.items()}
+
+
+def _check(case: Case, res: subprocess.CompletedProcess) -> None:
+    assert res.returncode == 2, (res.returncode, res.stdout[-2000:], res.stderr[-2000:])
+    assert "Traceback" not in res.stderr, res.stderr
+    if case.box:
+        assert case.expect in res.stderr, res.stderr
+        return
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith(f"error: {case.expect}"), lines[0]
+
+
+def test_the_matrix_is_big_and_covers_every_command():
+    per_command = {
+        c: sum(case.command == c for case in CASES.values()) for c in ("train", "eval", "render", "synth")
+    }
+    assert len(CASES) >= 24 and min(per_command.values()) >= 5, per_command
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input_is_one_line_exit_2_and_leaves_the_run_intact(batch, world, pristine, name):
+    _check(CASES[name], batch[name])
+    assert _snapshot(world["run"]) == pristine, "the existing run folder was changed"
+
+
+@pytest.mark.parametrize("name", ["train: negative --max-steps", "eval: truncated checkpoint",
+                                  "render: unknown output name (into the run folder)", "synth: scene --width 0"])  # fmt: skip
+def test_the_real_entry_points_agree_with_the_batch(batch, world, pristine, name):
+    """A few cases again as separate processes: the batch runner changes nothing a user would see."""
+    res = _run(CASES[name], world)
+    _check(CASES[name], res)
+    assert res.stderr.strip() == batch[name].stderr.strip()
+    assert _snapshot(world["run"]) == pristine
