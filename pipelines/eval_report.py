@@ -6,9 +6,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-import torch
 
 from pipelines.evaluate import BINS, ViewRender
+from pipelines.visualize import to_png
 
 PANEL_LABEL_HEIGHT = 16
 """Pixels of the caption band above each panel."""
@@ -69,15 +69,6 @@ def markdown_report(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _rgb(img: torch.Tensor) -> np.ndarray:
-    return (img.detach().float().cpu().numpy().clip(0, 1) * 255 + 0.5).astype(np.uint8)  # [H, W, 3]
-
-
-def _turbo(t: torch.Tensor) -> np.ndarray:
-    x = (t[..., 0].detach().float().cpu().numpy().clip(0, 1) * 255).astype(np.uint8)  # [H, W]
-    return cv2.applyColorMap(x, cv2.COLORMAP_TURBO)[..., ::-1].copy()
-
-
 def _labelled(img: np.ndarray, label: str) -> np.ndarray:
     band = np.full((PANEL_LABEL_HEIGHT, img.shape[1], 3), 255, np.uint8)
     cv2.putText(
@@ -93,16 +84,16 @@ def side_by_side(view: ViewRender) -> np.ndarray:
     reference; a missing reference is a grey panel.
     """
     out = view.outputs
-    clean = _rgb(out["clean"])
+    clean = to_png(out["clean"])
     if view.hazy_input is not None:
-        hazy, hazy_label = _rgb(view.hazy_input), "hazy input"
+        hazy, hazy_label = to_png(view.hazy_input), "hazy input"
     else:
-        hazy, hazy_label = _rgb(out["hazy"]), "hazy (render)"
-    ref = _rgb(view.reference) if view.reference is not None else np.full_like(clean, 128)
+        hazy, hazy_label = to_png(out["hazy"]), "hazy (render)"
+    ref = to_png(view.reference) if view.reference is not None else np.full_like(clean, 128)
     panels = [
         _labelled(hazy, hazy_label),
         _labelled(clean, "ours clean"),
         _labelled(ref, "reference" if view.reference is not None else "no reference"),
-        _labelled(_turbo(out["transmittance"]), "transmittance"),
+        _labelled(to_png(out["transmittance"], (0.0, 1.0)), "transmittance"),
     ]
     return np.concatenate(panels, axis=1)
