@@ -18,6 +18,8 @@ class Variant:
     overrides: tuple[str, ...] = ()
     label: str = ""
     """Row label in the table (default: the name)."""
+    max_steps: int | None = None
+    """Steps of this variant's run (None: the runner's step budget)."""
 
     def train_args(self) -> list[str]:
         return [self.method, *self.overrides]

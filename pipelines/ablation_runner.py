@@ -8,6 +8,7 @@ folder with a checkpoint but no result (killed, Ctrl-C) is continued with ``td-t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -52,6 +53,8 @@ class AblationRunner:
         self._procs: set[subprocess.Popen] = set()
         self._lock = threading.Lock()
         self._stopping = False
+        self.peak_rss_mb: dict[int, float] = {}
+        """Peak resident memory of the current job's processes, per worker thread."""
 
     # ------------------------------------------------------------------------------- paths
     def run_dir(self, job: Job) -> Path:
@@ -63,13 +66,16 @@ class AblationRunner:
     def log_path(self, job: Job) -> Path:
         return self.opts.output_dir / "logs" / f"{job.scene.name}__{job.variant.name}.log"
 
+    def steps(self, job: Job) -> int:
+        return job.variant.max_steps or self.opts.max_steps
+
     def signature(self, job: Job) -> dict[str, Any]:
         o = self.opts
         return {
             "scene": str(job.scene.resolve()),
             "method": job.variant.method,
             "overrides": list(job.variant.overrides),
-            "max_steps": o.max_steps,
+            "max_steps": self.steps(job),
             "seed": o.seed,
             "extra": list(o.extra),
         }
@@ -94,7 +100,13 @@ class AblationRunner:
         with self._lock:
             self._procs.add(proc)
         try:
-            return proc.wait()
+            _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak memory, unlike getrusage
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            self.peak_rss_mb[threading.get_ident()] = max(
+                self.peak_rss_mb.get(threading.get_ident(), 0.0),
+                usage.ru_maxrss / 1024.0,  # KiB -> MiB
+            )
+            return proc.returncode
         finally:
             with self._lock:
                 self._procs.discard(proc)
@@ -104,7 +116,9 @@ class AblationRunner:
         rd = self.run_dir(job)
         log_path = self.log_path(job)
         log_path.parent.mkdir(parents=True, exist_ok=True)
+        self.peak_rss_mb[threading.get_ident()] = 0.0
         py = sys.executable
+        steps = self.steps(job)
         t0 = time.perf_counter()
         with log_path.open("a", encoding="utf-8") as log:
             if rd.exists() and latest_checkpoint(rd) is not None and self._same_config(job):
@@ -125,8 +139,8 @@ class AblationRunner:
                 train = [
                     py, "-m", "tridehaze_plugin.cli.train", *v.train_args(), "--data", str(job.scene),
                     "--output-dir", str(o.output_dir / "runs"), "--timestamp", v.name,
-                    "--max-steps", str(o.max_steps), "--seed", str(o.seed), "--threads", str(o.threads),
-                    "--no-eval-at-end", "--steps-per-save", str(max(o.max_steps // 4, 1)), *o.extra,
+                    "--max-steps", str(steps), "--seed", str(o.seed), "--threads", str(o.threads),
+                    "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *o.extra,
                 ]  # fmt: skip
             code = self._call(train, log)
             train_s = time.perf_counter() - t0
@@ -154,6 +168,8 @@ class AblationRunner:
             "train_seconds": train_info.get("train_seconds", train_s),
             "wall_seconds": train_s + eval_s,
             "gaussians": train_info.get("gaussians"),
+            "steps": steps,
+            "peak_rss_mb": self.peak_rss_mb.get(threading.get_ident()),
             "restoration": report.get("restoration"),
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),
@@ -217,11 +233,16 @@ class AblationRunner:
                 os.killpg(p.pid, signal.SIGINT)
             except ProcessLookupError:
                 pass
-        for p in procs:
-            try:
-                p.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        deadline = time.monotonic() + 60.0  # the worker threads reap them (os.wait4)
+        while time.monotonic() < deadline:
+            with self._lock:
+                if not self._procs:
+                    return
+            time.sleep(0.2)
+        with self._lock:
+            for p in self._procs:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
 
 
 def _read_json(path: Path) -> dict[str, Any]:

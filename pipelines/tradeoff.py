@@ -1,0 +1,94 @@
+"""The speed-accuracy grid: every knob that costs time, swept one at a time around a base config.
+
+A full factorial grid over eight knobs is far beyond a CPU budget, so each knob is varied alone
+(the other knobs at the base values) and a few combined settings (the preset candidates) are added;
+the Pareto front is then taken over all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from pipelines.ablation import Variant
+
+BASE_METHOD = "tri-dehaze"
+BASE_STEPS = 1500
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One time-costing setting and the values to try (the base value first)."""
+
+    name: str
+    flag: str | None
+    """The td-train flag; None for the step count (a run setting, not an override)."""
+    values: tuple[str, ...]
+
+
+KNOBS: tuple[Knob, ...] = (
+    Knob("steps", None, ("1500", "500", "1000", "3000")),
+    Knob("downscale", "--downscale", ("1", "2")),
+    Knob("max-gaussians", "--pipeline.densify.max-gaussians", ("1000000", "5000", "20000")),
+    Knob("grow-grad2d", "--pipeline.densify.grow-grad2d", ("0.0002", "0.0004", "0.0001")),
+    Knob("samples", "--pipeline.composite.num-samples", ("16", "4", "8", "32")),
+    Knob("medium-res", "--pipeline.medium.resolution", ("64", "16", "32", "128")),
+    Knob("coarse-rays", "--pipeline.composite.coarse-rays", ("1200", "300", "4800")),
+    Knob("sh-degree", "--pipeline.model.sh-degree", ("3", "0", "1")),
+    Knob("rasterizer", "--pipeline.rasterizer.backend", ("cpu", "torch")),
+)
+"""Knobs of issue 8 with their values; the first value of each is the base (tri-dehaze's default)."""
+
+COMBOS: dict[str, dict[str, str]] = {
+    "fast": {"steps": "1000", "sh-degree": "1", "samples": "8", "medium-res": "32", "coarse-rays": "300",
+             "max-gaussians": "20000"},
+    "quality": {"steps": "3000", "samples": "32", "coarse-rays": "4800"},
+}  # fmt: skip
+"""Combined settings (preset candidates) measured next to the one-knob sweeps."""
+
+
+def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
+    overrides: list[str] = []
+    steps = base_steps
+    for knob in KNOBS:
+        value = settings.get(knob.name)
+        if value is None or value == knob.values[0]:
+            continue
+        if knob.flag is None:  # step counts scale with the budget (the values are for BASE_STEPS)
+            steps = max(1, round(int(value) * base_steps / BASE_STEPS))
+        else:
+            overrides += [knob.flag, value]
+    return Variant(name, BASE_METHOD, tuple(overrides), label=name, max_steps=steps)
+
+
+def grid(knobs: list[str] | None = None, combos: bool = True, base_steps: int = BASE_STEPS) -> list[Variant]:
+    """The base run, each knob's other values one at a time, then the combinations; ``base_steps``
+    rescales every step count (names keep the values at the default budget)."""
+    chosen = [k for k in KNOBS if knobs is None or k.name in knobs]
+    variants = [_variant("base", {}, base_steps)]
+    for knob in chosen:
+        for value in knob.values[1:]:
+            variants.append(_variant(f"{knob.name}={value}", {knob.name: value}, base_steps))
+    if combos:
+        variants += [_variant(name, settings, base_steps) for name, settings in COMBOS.items()]
+    return variants
+
+
+def pareto_front(points: list[dict[str, Any]], cost: str = "wall_seconds", gain: str = "psnr") -> list[str]:
+    """Names of the points no other point beats on both cost (lower) and gain (higher)."""
+    front = []
+    for p in points:
+        if p.get(cost) is None or p.get(gain) is None:
+            continue
+        dominated = any(
+            q is not p
+            and q.get(cost) is not None
+            and q.get(gain) is not None
+            and q[cost] <= p[cost]
+            and q[gain] >= p[gain]
+            and (q[cost] < p[cost] or q[gain] > p[gain])
+            for q in points
+        )
+        if not dominated:
+            front.append(p["name"])
+    return front

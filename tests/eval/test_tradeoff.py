@@ -1,0 +1,59 @@
+"""td-bench tradeoff: the grid, the Pareto front, and a tiny end-to-end sweep."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_grid_varies_one_knob_at_a_time():
+    variants = grid()
+    names = [v.name for v in variants]
+    assert names[0] == "base" and variants[0].overrides == () and variants[0].max_steps == BASE_STEPS
+    assert len(names) == len(set(names)) == 1 + sum(len(k.values) - 1 for k in KNOBS) + 2
+    samples = {v.name: v for v in grid(["samples"], combos=False)}
+    assert set(samples) == {"base", "samples=4", "samples=8", "samples=32"}
+    assert samples["samples=8"].overrides == ("--pipeline.composite.num-samples", "8")
+    steps = {v.name: v for v in grid(["steps"], combos=False)}
+    assert steps["steps=500"].max_steps == 500 and steps["steps=500"].overrides == ()
+    assert {v.name: v.max_steps for v in grid(["steps"], combos=False, base_steps=300)}["steps=3000"] == 600
+
+
+def test_pareto_front():
+    pts = [
+        {"name": "a", "wall_seconds": 10, "psnr": 15.0},
+        {"name": "b", "wall_seconds": 20, "psnr": 18.0},
+        {"name": "c", "wall_seconds": 25, "psnr": 17.0},  # slower and worse than b
+        {"name": "d", "wall_seconds": 40, "psnr": 18.0},  # as good as b, slower
+        {"name": "e", "wall_seconds": 50, "psnr": 19.0},
+        {"name": "f", "wall_seconds": None, "psnr": 30.0},  # failed run: not on the front
+    ]
+    assert pareto_front(pts) == ["a", "b", "e"]
+
+
+def test_td_bench_tradeoff_tiny(eval_scene, tmp_path):
+    out = tmp_path / "tt"
+    train_args = "--pipeline.warmup-steps 2 --pipeline.model.sh-degree 0"
+    r = subprocess.run(
+        [sys.executable, "-m", "tridehaze_plugin.cli.bench", "tradeoff", "--scenes", str(eval_scene),
+         "--output-dir", str(out), "--knobs", "samples", "--no-combos", "--base-steps", "3", "--lpips", "off",
+         f"--train-args={train_args}"],
+        capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = list(csv.DictReader((out / "tradeoff.csv").open()))
+    assert [row["name"] for row in rows] == ["base", "samples=4", "samples=8", "samples=32"]
+    for row in rows:
+        assert float(row["wall_seconds"]) > 0 and float(row["peak_rss_mb"]) > 50 and float(row["psnr"]) > 5
+    assert any(row["pareto"] == "True" for row in rows)
+    data = json.loads((out / "tradeoff.json").read_text())
+    assert {r["steps"] for r in data["results"]} == {3}  # --base-steps
+    assert (out / "tradeoff.png").stat().st_size > 1000 and "Pareto front" in r.stdout
