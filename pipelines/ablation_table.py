@@ -16,7 +16,8 @@ CSV_FIELDS = (
 )  # fmt: skip
 
 
-def _get(result: dict[str, Any], *keys: str) -> float | None:
+def nested(result: dict[str, Any], *keys: str) -> float | None:
+    """``result[k1][k2]...`` or None where any level is missing."""
     node: Any = result
     for k in keys:
         if not isinstance(node, dict) or node.get(k) is None:
@@ -25,7 +26,8 @@ def _get(result: dict[str, Any], *keys: str) -> float | None:
     return node
 
 
-def _mean(values: list[float | None]) -> float | None:
+def mean_finite(values: list[float | None]) -> float | None:
+    """Mean of the finite values (None if there are none)."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
     return sum(vals) / len(vals) if vals else None
 
@@ -47,11 +49,11 @@ def variant_means(results: list[dict[str, Any]], scenes: list[str]) -> dict[str,
         if not rows:
             continue
         out[name] = {
-            "psnr": _mean([_get(r, "restoration", "psnr") for r in rows]),
-            "ssim": _mean([_get(r, "restoration", "ssim") for r in rows]),
-            "lpips": _mean([_get(r, "restoration", "lpips") for r in rows]),
-            "low_T_psnr": _mean([_get(r, "binned", "low", "psnr") for r in rows]),
-            "wall_seconds": _mean([r.get("wall_seconds") for r in rows]),
+            "psnr": mean_finite([nested(r, "restoration", "psnr") for r in rows]),
+            "ssim": mean_finite([nested(r, "restoration", "ssim") for r in rows]),
+            "lpips": mean_finite([nested(r, "restoration", "lpips") for r in rows]),
+            "low_T_psnr": mean_finite([nested(r, "binned", "low", "psnr") for r in rows]),
+            "wall_seconds": mean_finite([r.get("wall_seconds") for r in rows]),
             "scenes": len(rows),
         }
     return out
@@ -68,7 +70,11 @@ def markdown_table(
     for fam in families:
         lines += [f"### {fam}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         if fam == "baselines" and hazy:
-            cells = ["hazy input", *(_fmt(hazy.get(s)) for s in scenes), _fmt(_mean(list(hazy.values())))]
+            cells = [
+                "hazy input",
+                *(_fmt(hazy.get(s)) for s in scenes),
+                _fmt(mean_finite(list(hazy.values()))),
+            ]
             lines.append("| " + " | ".join(cells + ["-"] * (len(head) - len(cells))) + " |")
         for name in FAMILIES[fam]:
             per_scene = []
@@ -77,7 +83,7 @@ def markdown_table(
                 per_scene.append(
                     "failed"
                     if r is not None and r["status"] != "ok"
-                    else _fmt(_get(r or {}, "restoration", "psnr"))
+                    else _fmt(nested(r or {}, "restoration", "psnr"))
                 )
             m = means.get(name, {})
             lines.append(
@@ -127,9 +133,9 @@ def csv_text(results: list[dict[str, Any]]) -> str:
     for r in sorted(results, key=lambda r: (r["scene"], r["variant"])):
         writer.writerow({
             "scene": r["scene"], "variant": r["variant"], "method": r.get("method", ""), "status": r["status"],
-            "restoration_psnr": _get(r, "restoration", "psnr"), "restoration_ssim": _get(r, "restoration", "ssim"),
-            "restoration_lpips": _get(r, "restoration", "lpips"),
-            "reconstruction_psnr": _get(r, "reconstruction", "psnr"), "low_T_psnr": _get(r, "binned", "low", "psnr"),
+            "restoration_psnr": nested(r, "restoration", "psnr"), "restoration_ssim": nested(r, "restoration", "ssim"),
+            "restoration_lpips": nested(r, "restoration", "lpips"),
+            "reconstruction_psnr": nested(r, "reconstruction", "psnr"), "low_T_psnr": nested(r, "binned", "low", "psnr"),
             "gaussians": r.get("gaussians"), "train_seconds": r.get("train_seconds"),
             "wall_seconds": r.get("wall_seconds"),
         })  # fmt: skip
@@ -154,11 +160,11 @@ def bar_plot(
         colors = ["tab:orange" if n == "full" else "tab:blue" for n in names]
         ax.bar(range(len(names)), vals, color=colors)
         for i, n in enumerate(names):
-            pts = [_get(table.get((s, n), {}), "restoration", "psnr") for s in scenes]
+            pts = [nested(table.get((s, n), {}), "restoration", "psnr") for s in scenes]
             pts = [p for p in pts if p is not None]
             ax.scatter([i] * len(pts), pts, color="black", s=8, zorder=3)
         if hazy:
-            ax.axhline(_mean(list(hazy.values())), color="gray", ls="--", lw=1, label="hazy input")
+            ax.axhline(mean_finite(list(hazy.values())), color="gray", ls="--", lw=1, label="hazy input")
         ax.set_xticks(
             range(len(names)), [VARIANTS[n].name for n in names], rotation=40, ha="right", fontsize=8
         )

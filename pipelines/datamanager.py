@@ -47,6 +47,14 @@ class DataManager:
         """The (hazy) input image of view ``idx``: [H, W, 3] float in [0, 1] on the device."""
         return self._images[idx]
 
+    def hazy_image(self, idx: int) -> Tensor | None:
+        """The hazy input of view ``idx``, or None where the view's image is itself the clean
+        reference (Blender/RealX3D-style test views)."""
+        sc = self.scene
+        if sc.test_is_clean and sc.clean_paths[idx] == sc.image_paths[idx]:
+            return None
+        return self.image(idx)
+
     def clean_image(self, idx: int) -> Tensor | None:
         """The haze-free reference of view ``idx`` ([H, W, 3]) or None when the dataset has none."""
         return self._clean[idx] if self._clean.has(idx) else None

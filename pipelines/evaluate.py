@@ -146,8 +146,7 @@ def evaluate(
     for idx in indices:
         out = pipeline.render(dm.camera(idx))
         clean_ref = dm.clean_image(idx)
-        input_is_clean = dm.scene.test_is_clean and dm.scene.clean_paths[idx] == dm.scene.image_paths[idx]
-        hazy_in = None if input_is_clean else dm.image(idx)
+        hazy_in = dm.hazy_image(idx)
         row: dict[str, Any] = {"name": names[idx]}
         if clean_ref is not None:
             row["restoration"] = _scores(out["clean"], clean_ref, lpips_fn)

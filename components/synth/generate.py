@@ -150,6 +150,24 @@ def generate_scene(cfg: SceneConfig) -> dict[str, Any]:
     return meta
 
 
+def write_view(root: Path, stem: str, view, hz) -> dict[str, str]:
+    """Write one view's hazy image, clean reference and true depth / T / S maps; returns the
+    frame's ``*_file_path`` entries (relative to ``root``)."""
+    files = {
+        "file_path": f"images/{stem}.png",
+        "clean_file_path": f"clean/{stem}.png",
+        "gt_depth_file_path": f"gt_depth/{stem}.npy",
+        "gt_transmittance_file_path": f"gt_transmittance/{stem}.npy",
+        "gt_scattering_file_path": f"gt_scattering/{stem}.npy",
+    }
+    write_rgb(root / files["file_path"], hz.hazy.numpy())
+    write_rgb(root / files["clean_file_path"], view.clean.numpy())
+    write_map(root / files["gt_depth_file_path"], view.depth_z.numpy())
+    write_map(root / files["gt_transmittance_file_path"], hz.transmittance.numpy())
+    write_map(root / files["gt_scattering_file_path"], hz.scattering.numpy())
+    return files
+
+
 def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     t_start = time.perf_counter()
     layout = make_layout(cfg.layout, cfg.seed)
@@ -168,20 +186,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
         t1 = time.perf_counter()
         hz = apply_medium(view, medium, cfg.samples)
         t2 = time.perf_counter()
-        name = f"{i:04d}"
-        files = {
-            "file_path": f"images/{name}.png",
-            "clean_file_path": f"clean/{name}.png",
-            "gt_depth_file_path": f"gt_depth/{name}.npy",
-            "gt_transmittance_file_path": f"gt_transmittance/{name}.npy",
-            "gt_scattering_file_path": f"gt_scattering/{name}.npy",
-        }
-        write_rgb(root / files["file_path"], hz.hazy.numpy())
-        write_rgb(root / files["clean_file_path"], view.clean.numpy())
-        write_map(root / files["gt_depth_file_path"], view.depth_z.numpy())
-        write_map(root / files["gt_transmittance_file_path"], hz.transmittance.numpy())
-        write_map(root / files["gt_scattering_file_path"], hz.scattering.numpy())
-        frames.append(frame_entry(c2w, files))
+        frames.append(frame_entry(c2w, write_view(root, f"{i:04d}", view, hz)))
         T = hz.transmittance.numpy()
         mean_T.append(float(T.mean()))
         T_hist += np.bincount(np.clip(np.rint(T.ravel() * 1000), 0, 1000).astype(np.int64), minlength=1001)

@@ -31,12 +31,12 @@ import torch
 from rich.console import Console
 
 from components.rasterizers.base import resolve_backend
-from components.synth.generate import camera_poses
+from components.synth.generate import camera_poses, write_view
 from components.synth.layouts import make_layout
 from components.synth.medium import make_medium
 from components.synth.render import apply_medium, render_clean
 from components.synth.trajectories import Intrinsics, look_at
-from components.synth.writer import frame_entry, write_json, write_map, write_rgb
+from components.synth.writer import frame_entry, write_json
 from pipelines.optimizers import Optimizers
 from pipelines.trainer import Trainer
 from tests.tiny_scenes import TINY, tiny_hazy_scene
@@ -68,19 +68,7 @@ def _sky_views(root: Path, layout_name: str, haze: str, seed: int, n: int) -> li
         view = render_clean(layout, up, K, 1)
         assert not bool(view.hit.any()) and bool((view.t_end == layout.far).all())  # sky only: far bound
         hz = apply_medium(view, medium, TINY["samples"])
-        stem = f"sky{j}"
-        files = {
-            "file_path": f"images/{stem}.png",
-            "clean_file_path": f"clean/{stem}.png",
-            "gt_depth_file_path": f"gt_depth/{stem}.npy",
-            "gt_transmittance_file_path": f"gt_transmittance/{stem}.npy",
-            "gt_scattering_file_path": f"gt_scattering/{stem}.npy",
-        }
-        write_rgb(root / files["file_path"], hz.hazy.numpy())
-        write_rgb(root / files["clean_file_path"], view.clean.numpy())
-        write_map(root / files["gt_depth_file_path"], view.depth_z.numpy())  # the far bound's z
-        write_map(root / files["gt_transmittance_file_path"], hz.transmittance.numpy())
-        write_map(root / files["gt_scattering_file_path"], hz.scattering.numpy())
+        files = write_view(root, f"sky{j}", view, hz)  # depth: the far bound's z
         meta["frames"].append(frame_entry(up, files))
         names.append(files["file_path"])
     meta["train_filenames"] += names

@@ -91,9 +91,9 @@ def hazy_input_psnr(scene: Path) -> float | None:
     dm = DataManager(sc, device="cpu")  # type: ignore[arg-type]
     vals = []
     for i in sc.test_indices:
-        ref = dm.clean_image(i)
-        if ref is not None and not (sc.test_is_clean and sc.clean_paths[i] == sc.image_paths[i]):
-            vals.append(float(psnr(dm.image(i), ref)))
+        ref, hazy = dm.clean_image(i), dm.hazy_image(i)
+        if ref is not None and hazy is not None:
+            vals.append(float(psnr(hazy, ref)))
     return sum(vals) / len(vals) if vals else None
 
 

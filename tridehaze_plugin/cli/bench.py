@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from typing import Any, Literal
 import tyro
 
 from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
-from pipelines.ablation_table import _get, _mean
+from pipelines.ablation_table import mean_finite, nested
 from pipelines.run_config import write_text_atomic
 from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
 from tridehaze_plugin.cli.common import run_cli
@@ -66,12 +67,12 @@ def summarize(results: list[dict[str, Any]], names: list[str]) -> list[dict[str,
         rs = [r for r in results if r["variant"] == name and r["status"] == "ok"]
         rows.append({
             "name": name, "scenes": len(rs), "steps": rs[0].get("steps") if rs else None,
-            "wall_seconds": _mean([r.get("wall_seconds") for r in rs]),
-            "peak_rss_mb": _mean([r.get("peak_rss_mb") for r in rs]),
-            "gaussians": _mean([r.get("gaussians") for r in rs]),
-            "psnr": _mean([_get(r, "restoration", "psnr") for r in rs]),
-            "ssim": _mean([_get(r, "restoration", "ssim") for r in rs]),
-            "lpips": _mean([_get(r, "restoration", "lpips") for r in rs]),
+            "wall_seconds": mean_finite([r.get("wall_seconds") for r in rs]),
+            "peak_rss_mb": mean_finite([r.get("peak_rss_mb") for r in rs]),
+            "gaussians": mean_finite([r.get("gaussians") for r in rs]),
+            "psnr": mean_finite([nested(r, "restoration", "psnr") for r in rs]),
+            "ssim": mean_finite([nested(r, "restoration", "ssim") for r in rs]),
+            "lpips": mean_finite([nested(r, "restoration", "lpips") for r in rs]),
         })  # fmt: skip
     front = set(pareto_front(rows))
     for row in rows:
@@ -146,7 +147,7 @@ def tradeoff(args: TradeoffArgs) -> None:
     variants = grid(list(args.knobs), args.combos, args.base_steps)
     opts = RunnerOptions(
         output_dir=args.output_dir, max_steps=args.base_steps, seed=args.seed, threads=args.threads, jobs=args.jobs,
-        bins="none", lpips=args.lpips, extra=tuple(args.train_args.split()),
+        bins="none", lpips=args.lpips, extra=tuple(shlex.split(args.train_args)),
     )  # fmt: skip
     runner = AblationRunner(opts)
     jobs = [Job(s, v) for s in args.scenes for v in variants]
