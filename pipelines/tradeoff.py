@@ -42,7 +42,7 @@ KNOBS: tuple[Knob, ...] = (
 COMBOS: dict[str, dict[str, str]] = {
     "fast": {"steps": "1000", "sh-degree": "1", "samples": "8", "medium-res": "32", "coarse-rays": "300",
              "max-gaussians": "20000"},
-    "quality": {"steps": "3000", "samples": "32", "coarse-rays": "4800"},
+    "quality": {"steps": "3000", "grow-grad2d": "0.0004", "medium-res": "128", "coarse-rays": "4800"},
 }  # fmt: skip
 """Combined settings (preset candidates) measured next to the one-knob sweeps."""
 
@@ -61,13 +61,38 @@ def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
     return Variant(name, BASE_METHOD, tuple(overrides), label=name, max_steps=steps)
 
 
+def parse_knobs(specs: list[str] | None) -> dict[str, tuple[str, ...]]:
+    """``["steps", "samples=4,8"]`` -> the chosen knobs with the non-base values to try
+    (a bare name takes all of them); None selects every knob."""
+    by_name = {k.name: k for k in KNOBS}
+    if specs is None:
+        return {k.name: k.values[1:] for k in KNOBS}
+    chosen: dict[str, tuple[str, ...]] = {}
+    for spec in specs:
+        name, _, values = spec.partition("=")
+        if name not in by_name:
+            raise ValueError(f"unknown knob {name!r}; use one of {', '.join(by_name)}")
+        knob = by_name[name]
+        if not values:
+            chosen[name] = knob.values[1:]
+            continue
+        picked = tuple(v.strip() for v in values.split(",") if v.strip())
+        unknown = [v for v in picked if v not in knob.values[1:]]
+        if unknown or not picked:
+            raise ValueError(f"knob {name} has no value {', '.join(unknown) or '(empty)'}; "
+                             f"try {', '.join(knob.values[1:])}")  # fmt: skip
+        chosen[name] = picked
+    return chosen
+
+
 def grid(knobs: list[str] | None = None, combos: bool = True, base_steps: int = BASE_STEPS) -> list[Variant]:
     """The base run, each knob's other values one at a time, then the combinations; ``base_steps``
-    rescales every step count (names keep the values at the default budget)."""
-    chosen = [k for k in KNOBS if knobs is None or k.name in knobs]
+    rescales every step count (names keep the values at the default budget). ``knobs`` as in
+    :func:`parse_knobs`."""
+    chosen = parse_knobs(knobs)
     variants = [_variant("base", {}, base_steps)]
-    for knob in chosen:
-        for value in knob.values[1:]:
+    for knob in KNOBS:
+        for value in chosen.get(knob.name, ()):
             variants.append(_variant(f"{knob.name}={value}", {knob.name: value}, base_steps))
     if combos:
         variants += [_variant(name, settings, base_steps) for name, settings in COMBOS.items()]

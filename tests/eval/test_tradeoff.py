@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
+from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, parse_knobs, pareto_front
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -57,3 +57,15 @@ def test_td_bench_tradeoff_tiny(eval_scene, tmp_path):
     data = json.loads((out / "tradeoff.json").read_text())
     assert {r["steps"] for r in data["results"]} == {3}  # --base-steps
     assert (out / "tradeoff.png").stat().st_size > 1000 and "Pareto front" in r.stdout
+
+
+def test_knob_values_can_be_chosen():
+    names = [v.name for v in grid(["samples=4,8", "steps=500"], combos=False)]
+    assert names == ["base", "steps=500", "samples=4", "samples=8"]
+    for bad in (["samples=5"], ["nope"], ["samples=,"]):
+        try:
+            parse_knobs(bad)
+        except ValueError as e:
+            assert "knob" in str(e)
+        else:
+            raise AssertionError(f"{bad} accepted")
