@@ -36,6 +36,7 @@ KNOBS: tuple[Knob, ...] = (
     Knob("coarse-rays", "--pipeline.composite.coarse-rays", ("1200", "300", "4800")),
     Knob("sh-degree", "--pipeline.model.sh-degree", ("3", "0", "1")),
     Knob("rasterizer", "--pipeline.rasterizer.backend", ("cpu", "torch")),
+    Knob("medium", "--pipeline.medium.backend", ("triplane", "constant", "none")),
 )
 """Knobs of issue 8 with their values; the first value of each is the base (tri-dehaze's default)."""
 

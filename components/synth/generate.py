@@ -38,7 +38,7 @@ from components.synth.writer import frame_entry, staged_output, write_json, writ
 from tridehaze_plugin.errors import ConfigError
 
 LayoutName = Literal["street", "courtyard", "room", "field"]
-HazeName = Literal["none", "homogeneous", "height", "patchy", "dense"]
+HazeName = Literal["none", "homogeneous", "height", "patchy", "dense", "uniform"]
 
 
 @dataclass
@@ -50,7 +50,8 @@ class SceneConfig:
     layout: LayoutName = "courtyard"
     """Scene layout: a street (forward walk), a courtyard, a room (indoor), an open field."""
     haze: HazeName = "patchy"
-    """Medium preset: none, homogeneous, height (ground fog), patchy (heterogeneous blobs), dense."""
+    """Medium preset: none, homogeneous (constant extinction, light dimmer near the ground), height
+    (ground fog), patchy (heterogeneous blobs), dense, uniform (constant extinction and light)."""
     seed: int = 0
     """Random seed for the layout and the medium (same seed, byte-identical images and maps)."""
     num_views: int = 32

@@ -8,14 +8,16 @@ homogeneous fog lets half the light through over ``d_ref``.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
-PRESETS: tuple[str, ...] = ("none", "homogeneous", "height", "patchy", "dense")
+PRESETS: tuple[str, ...] = ("none", "homogeneous", "height", "patchy", "dense", "uniform")
+"""``homogeneous`` has constant extinction but light that dims near the ground; ``uniform`` is
+homogeneous in both (the one medium a ``constant`` model represents exactly)."""
 BLOB_CUTOFF = 1e-9
 """A blob is skipped on rays where it stays below this (relative to beta0) along the whole segment."""
 
@@ -212,6 +214,9 @@ def make_medium(preset: str, ctx: MediumContext, seed: int = 0, beta_scale: floa
         fld: Field = ConstantField(0.0)
     elif preset == "homogeneous":
         fld = ConstantField(b_ref)
+    elif preset == "uniform":
+        fld = ConstantField(b_ref)
+        light = replace(light, ground_dim=0.0)
     elif preset == "height":
         fld = HeightField(beta_ground=3.0 * b_ref, scale_height=ctx.fog_height)
     elif preset == "patchy":

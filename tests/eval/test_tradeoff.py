@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, parse_knobs, pareto_front
+from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front, parse_knobs
 
 ROOT = Path(__file__).resolve().parents[2]
 

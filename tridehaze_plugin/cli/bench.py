@@ -41,7 +41,7 @@ class TradeoffArgs:
     knobs: list[str] = field(default_factory=lambda: [k.name for k in KNOBS])
     """Knobs to sweep, each alone around the base config: a name takes all its values, ``name=v1,v2``
     some of them (knobs: steps, downscale, max-gaussians, grow-grad2d, samples, medium-res,
-    coarse-rays, sh-degree, rasterizer)."""
+    coarse-rays, sh-degree, rasterizer, medium)."""
     base_steps: int = BASE_STEPS
     """Step budget of the base configuration; the steps knob's values scale with it."""
     combos: bool = True
