@@ -63,6 +63,11 @@ class Pipeline(nn.Module, ABC):
         """One line on how the pipeline was set up (e.g. data-driven initial values), or ''."""
         return ""
 
+    def pop_decisions(self) -> list[str]:
+        """Choices the pipeline made on its own since the last call (a haze probe's verdict,
+        densification that stopped growing), each one line; the trainer prints and logs them."""
+        return []
+
     @property
     def device(self) -> torch.device:
         for p in self.parameters():

@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 import tyro
 
 from components.data.config import DataConfig
+from pipelines.early_stop import EarlyStopConfig
 from pipelines.gaussian_pipeline import PipelineConfig
 from pipelines.optimizers import OptimizerConfig
 from tridehaze_plugin.errors import ConfigError
@@ -96,6 +97,8 @@ class TrainerConfig:
     """Write a checkpoint every N steps (and always at the end)."""
     eval_at_end: bool = True
     """Evaluate on the test split when training finishes and print the metrics."""
+    early_stop: EarlyStopConfig = field(default_factory=EarlyStopConfig)
+    """Stop before ``--max-steps`` when the held-out views' loss plateaus (``--early-stop.enabled``)."""
 
     def check_values(self) -> None:
         """Reject values that cannot work, naming the flag; called right after parsing."""
@@ -110,6 +113,7 @@ class TrainerConfig:
         if self.device not in ("auto", "cpu") and not self.device.startswith("cuda"):
             raise ConfigError(f"--device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
         self.viewer.check_values()
+        self.early_stop.check_values()
         self.pipeline.check_values()
 
 

@@ -176,6 +176,7 @@ class GaussianPipeline(Pipeline):
         self.medium = config.medium.setup(bounds=bounds).to(device)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         self.init_info: dict[str, float | str] = {}
+        self._decisions: list[str] = []
 
         train = datamanager.train_indices
         uses_medium = self.medium.has_medium
@@ -203,6 +204,8 @@ class GaussianPipeline(Pipeline):
         if getattr(self.medium, "renders_with_gaussians", False):
             self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
+        self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
+        self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=device)
         )
@@ -265,6 +268,7 @@ class GaussianPipeline(Pipeline):
         else:
             hazy = clean
         loss, terms = self.loss_fn(hazy, target)
+        self._photometric = loss.detach()
         metrics.update({k: float(v) for k, v in terms.items()})
         prior = self.priors.get(idx)
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
@@ -306,6 +310,8 @@ class GaussianPipeline(Pipeline):
     def after_backward(self, step: int) -> None:
         if self._last is not None:
             self.densifier.collect(self._last, self._dens_weight)
+        if self._photometric is not None:
+            self.densifier.observe_loss(self._photometric)
 
     def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         self.last_refine = self.densifier.step(step, self.model, optimizers)
@@ -371,4 +377,17 @@ class GaussianPipeline(Pipeline):
         return ", ".join(parts)
 
     def stats(self) -> dict[str, float | int]:
-        return {"gaussians": self.model.num_gaussians, "stage": int(self.stage)}
+        out = {"gaussians": self.model.num_gaussians, "stage": int(self.stage)}
+        if self.densifier.growth_stopped_at is not None:
+            out["growth_stopped_at"] = self.densifier.growth_stopped_at
+        return out
+
+    def pop_decisions(self) -> list[str]:
+        out = self._decisions + self.densifier.decisions
+        self._decisions, self.densifier.decisions = [], []
+        return out
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints written before plateau growth existed: keep this run's "still growing" state
+        state_dict.setdefault(prefix + "densify_plateau", self.densify_plateau.clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

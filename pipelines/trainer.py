@@ -27,6 +27,7 @@ from pipelines.base import Pipeline, StepResult
 from pipelines.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
 from pipelines.config import TrainerConfig
 from pipelines.datamanager import DataManager
+from pipelines.early_stop import EarlyStopper, heldout_l1
 from pipelines.evaluate import evaluate_split
 from pipelines.optimizers import Optimizers
 from pipelines.run_config import save_config, write_text_atomic
@@ -138,6 +139,9 @@ class Trainer:
             self.run_dir = self.resume
             self._restore()
         self.optimizers = Optimizers(self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps)
+        self.stopper = (
+            EarlyStopper(cfg.early_stop, self.datamanager, cfg.max_steps) if cfg.early_stop.enabled else None
+        )
         if self.resume is not None:
             self.optimizers.load_state_dict(self._payload["optimizers"])
             del self._payload
@@ -154,6 +158,7 @@ class Trainer:
         )
         if self.pipeline.describe():
             self.console.print(self.pipeline.describe())
+        self._log_decisions(self.start_step)
         self.console.print(f"run folder: {self.run_dir}")
         if self.start_step:
             self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
@@ -236,6 +241,7 @@ class Trainer:
                             self.save(done)
                         continue
                     self.bad_steps = 0
+                    self._log_decisions(step + 1)
                     dt = time.perf_counter() - t0
                     its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
                     metrics = {"loss": float(result.loss.detach()), **result.metrics}
@@ -262,6 +268,14 @@ class Trainer:
                                 f"step {done}/{cfg.max_steps}  loss {metrics['loss']:.4f}  "
                                 f"PSNR {metrics.get('psnr', math.nan):.2f}  {its:.2f} it/s"
                             )
+                    if self.stopper is not None and self.stopper.due(done) and done < cfg.max_steps:
+                        with lock:
+                            held = heldout_l1(pipe, self.datamanager, self.stopper.views)
+                        log.write(json.dumps({"step": done, "heldout_l1": held}) + "\n")
+                        if self.stopper.update(done, held):
+                            self._log_decisions(done, self.stopper.decisions)
+                            self.save(done)
+                            break
                     if done % cfg.steps_per_save == 0 or done == cfg.max_steps:
                         self.save(done)
             except KeyboardInterrupt:
@@ -273,7 +287,9 @@ class Trainer:
                 )
                 raise
         seconds = time.perf_counter() - start
-        final: dict[str, Any] = {"train_seconds": seconds, "steps": cfg.max_steps, **pipe.stats()}
+        final: dict[str, Any] = {"train_seconds": seconds, "steps": done, **pipe.stats()}
+        if done < cfg.max_steps:
+            final["stopped_early_at"] = done
         if self.skipped_steps:
             final["skipped_nonfinite_steps"] = self.skipped_steps
         final.update({f"train_{k}": v for k, v in metrics.items()})
@@ -282,7 +298,20 @@ class Trainer:
                 final.update(evaluate_split(pipe, self.datamanager, "test"))
         write_text_atomic(self.run_dir / "eval" / "metrics.json", json.dumps(final, indent=2))
         self._print_summary(final)
-        return TrainResult(self.run_dir, cfg.max_steps, seconds, final)
+        return TrainResult(self.run_dir, done, seconds, final)
+
+    def _log_decisions(self, step: int, extra: list[str] | None = None) -> None:
+        """Print the pipeline's own choices (and ``extra`` ones) and append them to
+        ``logs/decisions.jsonl``."""
+        decisions = self.pipeline.pop_decisions() + list(extra or [])
+        if not decisions:
+            return
+        path = self.run_dir / "logs" / "decisions.jsonl"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a", encoding="utf-8") as f:
+            for message in decisions:
+                self.console.print(f"[cyan]decision[/]: {message}")
+                f.write(json.dumps({"step": step, "message": message}) + "\n")
 
     def _finite(self, loss: torch.Tensor) -> bool:
         if not bool(torch.isfinite(loss.detach())):

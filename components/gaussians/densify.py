@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import torch
 from torch import Tensor, nn
@@ -44,6 +45,13 @@ class DensifyConfig:
     """After the first opacity reset, Gaussians larger than this fraction of the extent are removed."""
     max_gaussians: int = 1_000_000
     """Hard cap on the number of Gaussians; growth beyond it keeps the highest-gradient candidates."""
+    growth: Literal["schedule", "plateau"] = "schedule"
+    """schedule: clone and split at every refinement until refine_stop (as 3DGS); plateau: stop
+    growing for good at the first refinement where the photometric loss no longer improves (pruning
+    goes on), so the Gaussian count follows what the scene needs."""
+    plateau_min_improvement: float = 0.02
+    """For plateau growth: the relative decrease of the mean photometric loss over the last
+    refine_every steps, against the window before, below which growth stops."""
 
 
 class Densifier:
@@ -55,6 +63,13 @@ class Densifier:
         self.refine_stop = config.refine_stop if config.refine_stop is not None else max_steps // 2
         self.grad_sum: Tensor | None = None  # [N]
         self.count: Tensor | None = None  # [N]
+        self.loss_sum = torch.zeros((), dtype=torch.float64)  # photometric loss since the last refinement
+        self.loss_steps = 0
+        self.plateau = torch.tensor([-1.0, math.nan], dtype=torch.float64)
+        """[step growth stopped at (-1: growing), mean loss of the previous window]; a tensor so the
+        owning pipeline can keep it in its checkpoints (resume continues the same decision)."""
+        self.decisions: list[str] = []
+        """Human-readable growth decisions, newest last (the trainer prints them)."""
 
     # ------------------------------------------------------------------ statistics
     def collect(self, out: RasterizeOutput, weight: Tensor | None = None) -> None:
@@ -77,6 +92,42 @@ class Densifier:
         self.grad_sum += (norms * visible).sum(0)
         self.count += visible.sum(0)
 
+    def observe_loss(self, loss: Tensor) -> None:
+        """Add one step's photometric loss (a scalar tensor; kept on its device until a refinement)."""
+        self.loss_sum = self.loss_sum.to(loss.device) + loss.detach().double()
+        self.loss_steps += 1
+
+    @property
+    def growth_stopped_at(self) -> int | None:
+        step = int(self.plateau[0])
+        return step if step >= 0 else None
+
+    def _growth_allowed(self, done: int) -> bool:
+        """Under ``plateau`` growth: compare this window's mean loss with the previous one."""
+        if self.config.growth != "plateau":
+            return True
+        if self.growth_stopped_at is not None:
+            return False
+        if self.loss_steps == 0:
+            return True
+        mean = float(self.loss_sum) / self.loss_steps
+        prev = float(self.plateau[1])
+        self.plateau[1] = mean
+        self.loss_sum = torch.zeros((), dtype=torch.float64)
+        self.loss_steps = 0
+        if math.isnan(prev) or prev <= 0 or done < self.config.refine_start:
+            return True
+        gain = (prev - mean) / prev
+        if gain < self.config.plateau_min_improvement:
+            self.plateau[0] = float(done)
+            self.decisions.append(
+                f"step {done}: densification stops growing: photometric loss {prev:.5f} -> {mean:.5f} "
+                f"over the last {self.config.refine_every} steps ({100 * gain:+.1f} %, threshold "
+                f"{100 * self.config.plateau_min_improvement:.1f} %)"
+            )
+            return False
+        return True
+
     def _reset_stats(self, n: int, device: torch.device) -> None:
         self.grad_sum = torch.zeros(n, device=device)
         self.count = torch.zeros(n, device=device)
@@ -89,6 +140,8 @@ class Densifier:
         log: dict[str, int] = {}
         if not cfg.enabled:
             return log
+        if cfg.growth == "plateau" and done < cfg.refine_start and done % cfg.refine_every == 0:
+            self._growth_allowed(done)  # the window before the first refinement sets the reference
         if cfg.refine_start <= done <= self.refine_stop and done % cfg.refine_every == 0:
             log.update(self._refine(done, model, optimizers))
         if done % cfg.reset_every == 0 and done <= self.refine_stop:
@@ -104,6 +157,8 @@ class Densifier:
             self._reset_stats(n, model.means.device)
         avg = self.grad_sum / self.count.clamp_min(1)
         high = avg > cfg.grow_grad2d  # [N]
+        if not self._growth_allowed(done):
+            high = torch.zeros_like(high)
         big = model.scales.max(dim=-1).values > cfg.grow_scale3d * self.scene_extent
         room = max(cfg.max_gaussians - n, 0)
         clone, split = high & ~big, high & big

@@ -114,3 +114,36 @@ def test_cap_keeps_highest_gradients_and_schedule_window():
     d.collect(_fake_output(torch.full((6, 2), 0.05)))
     assert "cloned" not in d.step(29, model, opts)  # after refine_stop (20): no refinement
     assert math.isclose(d.refine_stop, 20)
+
+
+def _grow_run(losses: list[float], cfg: DensifyConfig, n_steps: int) -> tuple[Densifier, list[int]]:
+    """Feed one loss per step and high gradients everywhere; returns the count after each refinement."""
+    model = _model([0.001] * 4, [0.5] * 4)
+    opts = _optimizers(model)
+    d = Densifier(cfg, 1.0, max_steps=10 * n_steps)
+    counts = []
+    for step in range(n_steps):
+        d.collect(_fake_output(torch.full((model.num_gaussians, 2), 0.05)))
+        d.observe_loss(torch.tensor(losses[step]))
+        log = d.step(step, model, opts)
+        if "cloned" in log:
+            counts.append(model.num_gaussians)
+    return d, counts
+
+
+def test_plateau_growth_stops_when_the_loss_stops_improving():
+    cfg = DensifyConfig(refine_start=20, refine_every=10, growth="plateau", plateau_min_improvement=0.02)
+    # the loss falls 10 % per 10-step window, then is flat from step 40 on
+    losses = [0.9 ** min(s // 10, 4) for s in range(80)]
+    d, counts = _grow_run(losses, cfg, 80)
+    # refinements after 20, 30, 40, 50 steps grow (each window 10 % below the one before); after 60
+    # the window equals the previous one: growth stops for good, pruning-only refinements follow
+    assert counts == [8, 16, 32, 64, 64, 64, 64]
+    assert d.growth_stopped_at == 60 and float(d.plateau[0]) == 60
+    assert len(d.decisions) == 1 and "step 60" in d.decisions[0] and "+0.0 %" in d.decisions[0]
+    # a 1 % gain is below the 2 % threshold too
+    d, _ = _grow_run([0.99 ** (s // 10) for s in range(40)], cfg, 40)
+    assert d.growth_stopped_at == 20
+    # the schedule mode keeps growing on the same losses
+    _, counts = _grow_run(losses, DensifyConfig(refine_start=20, refine_every=10), 80)
+    assert counts == [8, 16, 32, 64, 128, 256, 512]
