@@ -8,7 +8,7 @@ hazy renders coincide; every ablation is a field of this config (docs/medium.md)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Annotated, Literal
 
 import torch
@@ -41,6 +41,7 @@ from pipelines.haze_priors import (
     resolve_depth_prior,
     scaled_step,
 )
+from pipelines.haze_probe import probe_haze
 from pipelines.metrics import psnr
 from pipelines.warmup_depth import warmup_depths
 from tridehaze_plugin.config import RegistryChoice
@@ -134,6 +135,11 @@ class PipelineConfig:
             )
         if self.medium.light == "sh" and not 0 <= self.medium.sh_degree <= 2:
             raise ConfigError(f"--pipeline.medium.sh-degree must be 0, 1 or 2, got {self.medium.sh_degree}")
+        if not 0.0 <= self.densify.plateau_min_improvement <= 1.0:
+            raise ConfigError(
+                "--pipeline.densify.plateau-min-improvement must be in [0, 1], "
+                f"got {self.densify.plateau_min_improvement}"
+            )
         if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
             raise ConfigError(
                 "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
@@ -173,10 +179,12 @@ class GaussianPipeline(Pipeline):
         self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
-        self.medium = config.medium.setup(bounds=bounds).to(device)
-        self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         self.init_info: dict[str, float | str] = {}
         self._decisions: list[str] = []
+        if config.medium.backend == "auto":
+            self._resolve_auto_medium(datamanager, seed)
+        self.medium = config.medium.setup(bounds=bounds).to(device)
+        self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
 
         train = datamanager.train_indices
         uses_medium = self.medium.has_medium
@@ -225,6 +233,14 @@ class GaussianPipeline(Pipeline):
         )
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
+
+    def _resolve_auto_medium(self, datamanager: DataManager, seed: int) -> None:
+        """Replace ``auto`` by the probe's choice in the config itself, so the run's saved config
+        names the medium it trained (reloading never probes again)."""
+        probe = probe_haze(datamanager, datamanager.train_indices, datamanager.scene.points, seed)
+        self.config.medium = replace(self.config.medium, backend=probe.backend)
+        self.haze_probe = probe
+        self._decisions.append(probe.message())
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:

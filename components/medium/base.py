@@ -89,9 +89,10 @@ class MediumSample:
 class MediumConfig(ComponentConfig):
     """The view-shared medium field (``none`` turns the medium off: plain 3DGS)."""
 
-    backend: Annotated[str, RegistryChoice("medium")] = "none"
+    backend: Annotated[str, RegistryChoice("medium", allow=("auto",))] = "none"
     """Medium representation: ``triplane``, ``voxel``, ``mlp``, ``fourier``, ``constant``,
-    ``gaussian-bound`` or ``none``."""
+    ``gaussian-bound``, ``none``, or ``auto``: a haze probe of the training views picks none, constant
+    or triplane before training and logs why (docs/tradeoff.md)."""
     resolution: int = 64
     """Tri-plane side (three planes of resolution^2 cells); other grids match its feature budget."""
     channels: int = 8
@@ -118,6 +119,8 @@ class MediumConfig(ComponentConfig):
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
 
     def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
+        if self.backend == "auto":
+            raise ValueError("medium backend 'auto' is resolved by the pipeline's haze probe before setup")
         cls = REGISTRY.get("medium", self.backend)
         return cls(
             self, bounds if bounds is not None else FieldBounds(torch.zeros(3), torch.ones(3)), **kwargs
