@@ -54,6 +54,9 @@ class AblationRunner:
         self._lock = threading.Lock()
         self._stopping = False
         self.peak_rss_mb: dict[int, float] = {}
+        self.cpu_seconds: dict[int, float] = {}
+        """Per worker thread: CPU time (user + system) of the children of the current job, which
+        unlike wall time hardly changes when other work shares the cores."""
         """Peak resident memory of the current job's processes, per worker thread."""
 
     # ------------------------------------------------------------------------------- paths
@@ -106,6 +109,8 @@ class AblationRunner:
                 self.peak_rss_mb.get(threading.get_ident(), 0.0),
                 usage.ru_maxrss / 1024.0,  # KiB -> MiB
             )
+            me = threading.get_ident()
+            self.cpu_seconds[me] = self.cpu_seconds.get(me, 0.0) + usage.ru_utime + usage.ru_stime
             return proc.returncode
         finally:
             with self._lock:
@@ -117,6 +122,7 @@ class AblationRunner:
         log_path = self.log_path(job)
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self.peak_rss_mb[threading.get_ident()] = 0.0
+        self.cpu_seconds[threading.get_ident()] = 0.0
         py = sys.executable
         steps = self.steps(job)
         t0 = time.perf_counter()
@@ -170,6 +176,7 @@ class AblationRunner:
             "gaussians": train_info.get("gaussians"),
             "steps": steps,
             "peak_rss_mb": self.peak_rss_mb.get(threading.get_ident()),
+            "cpu_seconds": self.cpu_seconds.get(threading.get_ident()),
             "restoration": report.get("restoration"),
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),

@@ -36,13 +36,14 @@ KNOBS: tuple[Knob, ...] = (
     Knob("coarse-rays", "--pipeline.composite.coarse-rays", ("1200", "300", "4800")),
     Knob("sh-degree", "--pipeline.model.sh-degree", ("3", "0", "1")),
     Knob("rasterizer", "--pipeline.rasterizer.backend", ("cpu", "torch")),
-    Knob("medium", "--pipeline.medium.backend", ("triplane", "constant", "none")),
+    Knob("medium", "--pipeline.medium.backend", ("triplane", "constant", "none", "auto")),
+    Knob("growth", "--pipeline.densify.growth", ("schedule", "plateau")),
 )
 """Knobs of issue 8 with their values; the first value of each is the base (tri-dehaze's default)."""
 
 COMBOS: dict[str, dict[str, str]] = {
     "fast": {"steps": "1000", "sh-degree": "1", "samples": "8", "medium-res": "32", "coarse-rays": "300",
-             "max-gaussians": "20000"},
+             "max-gaussians": "20000", "growth": "plateau", "medium": "auto"},
     "quality": {"steps": "3000", "grow-grad2d": "0.0004", "medium-res": "128", "coarse-rays": "4800"},
 }  # fmt: skip
 """Combined settings (preset candidates) measured next to the one-knob sweeps."""

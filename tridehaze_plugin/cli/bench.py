@@ -60,19 +60,22 @@ class TradeoffArgs:
     """List the runs without running them."""
 
 
-def summarize(results: list[dict[str, Any]], names: list[str]) -> list[dict[str, Any]]:
-    """One row per configuration: means over the scenes where it finished."""
+def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]) -> list[dict[str, Any]]:
+    """One row per configuration: means over the scenes where it finished, and PSNR per scene."""
     rows = []
     for name in names:
         rs = [r for r in results if r["variant"] == name and r["status"] == "ok"]
+        by_scene = {r["scene"]: nested(r, "restoration", "psnr") for r in rs}
         rows.append({
             "name": name, "scenes": len(rs), "steps": rs[0].get("steps") if rs else None,
             "wall_seconds": mean_finite([r.get("wall_seconds") for r in rs]),
+            "cpu_seconds": mean_finite([r.get("cpu_seconds") for r in rs]),
             "peak_rss_mb": mean_finite([r.get("peak_rss_mb") for r in rs]),
             "gaussians": mean_finite([r.get("gaussians") for r in rs]),
             "psnr": mean_finite([nested(r, "restoration", "psnr") for r in rs]),
             "ssim": mean_finite([nested(r, "restoration", "ssim") for r in rs]),
             "lpips": mean_finite([nested(r, "restoration", "lpips") for r in rs]),
+            **{f"psnr_{s}": by_scene.get(s) for s in scenes},
         })  # fmt: skip
     front = set(pareto_front(rows))
     for row in rows:
@@ -84,16 +87,20 @@ def _f(v: Any, digits: int) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
-def markdown(rows: list[dict[str, Any]]) -> str:
+def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
     lines = [
-        "| config | steps | time (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front | "
+        + " | ".join(f"PSNR {s}" for s in scenes)
+        + " |",
+        "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(scenes),
     ]
     for r in sorted(rows, key=lambda r: r["wall_seconds"] or 1e18):
         lines.append(
-            f"| {r['name']} | {r['steps'] or '-'} | {_f(r['wall_seconds'], 0)} | {_f(r['peak_rss_mb'], 0)} | "
-            f"{_f(r['gaussians'], 0)} | {_f(r['psnr'], 2)} | {_f(r['ssim'], 3)} | {_f(r['lpips'], 3)} | "
-            f"{'**yes**' if r['pareto'] else ''} |"
+            f"| {r['name']} | {r['steps'] or '-'} | {_f(r['wall_seconds'], 0)} | {_f(r['cpu_seconds'], 0)} | "
+            f"{_f(r['peak_rss_mb'], 0)} | {_f(r['gaussians'], 0)} | {_f(r['psnr'], 2)} | {_f(r['ssim'], 3)} | "
+            f"{_f(r['lpips'], 3)} | {'**yes**' if r['pareto'] else ''} | "
+            + " | ".join(_f(r.get(f"psnr_{s}"), 2) for s in scenes)
+            + " |"
         )
     return "\n".join(lines) + "\n"
 
@@ -171,8 +178,8 @@ def tradeoff(args: TradeoffArgs) -> None:
         print(f"{job.scene.name} / {job.variant.name}: {shown} ({state})", flush=True)
 
     results = runner.run(jobs, on_done)
-    rows = summarize(results, [v.name for v in variants])
-    md = markdown(rows)
+    rows = summarize(results, [v.name for v in variants], names)
+    md = markdown(rows, names)
     out = args.output_dir
     header = f"# Speed-accuracy trade-off: {', '.join(names)} (means over scenes)\n\n"
     write_text_atomic(out / "tradeoff.md", header + md)
