@@ -49,6 +49,38 @@ COMBOS: dict[str, dict[str, str]] = {
 """Combined settings (preset candidates) measured next to the one-knob sweeps."""
 
 
+def knob_flags(settings: dict[str, str]) -> tuple[list[str], int | None]:
+    """td-train flags for knob ``settings`` (base values left out) and the step count, if set."""
+    flags: list[str] = []
+    steps = None
+    for knob in KNOBS:
+        value = settings.get(knob.name)
+        if value is None or value == knob.values[0]:
+            continue
+        if knob.flag is None:
+            steps = int(value)
+        else:
+            flags += [knob.flag, value]
+    return flags, steps
+
+
+def preset_config(combo: str, method_name: str):  # -> TrainerConfig (imported late: no cycle)
+    """The tri-dehaze config with the measured combination ``combo`` applied: the presets
+    ``tri-dehaze-fast`` / ``-quality`` are exactly what ``td-bench tradeoff`` measured."""
+    import tyro
+
+    from pipelines.config import TrainerConfig
+    from tridehaze_plugin.registry import REGISTRY
+
+    base = REGISTRY.get("method", BASE_METHOD).make_config()
+    flags, steps = knob_flags(COMBOS[combo])
+    cfg = tyro.cli(TrainerConfig, args=flags, default=base)
+    cfg.method_name = method_name
+    if steps is not None:
+        cfg.max_steps = steps
+    return cfg
+
+
 def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
     overrides: list[str] = []
     steps = base_steps

@@ -107,3 +107,32 @@ def tri_dehaze_constant() -> TrainerConfig:
     base = tri_dehaze()
     pipeline = replace(base.pipeline, medium=replace(base.pipeline.medium, backend="constant"))
     return replace(base, method_name="tri-dehaze-constant", pipeline=pipeline)
+
+
+@method(
+    "tri-dehaze-fast",
+    (
+        "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
+        "tri-plane, at most 20k Gaussians that stop growing when the loss stops improving, and the "
+        "medium chosen by the haze probe (none / constant / tri-plane)."
+    ),
+)
+def tri_dehaze_fast() -> TrainerConfig:
+    """The ``fast`` point of the measured speed-accuracy front (pipelines/tradeoff.py)."""
+    from pipelines.tradeoff import preset_config
+
+    return preset_config("fast", "tri-dehaze-fast")
+
+
+@method(
+    "tri-dehaze-quality",
+    (
+        "Tri-DehazeGS for the best clean scene: 3000 steps with slower densification (grow-grad2d "
+        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step."
+    ),
+)
+def tri_dehaze_quality() -> TrainerConfig:
+    """The ``quality`` point of the measured speed-accuracy front (pipelines/tradeoff.py)."""
+    from pipelines.tradeoff import preset_config
+
+    return preset_config("quality", "tri-dehaze-quality")

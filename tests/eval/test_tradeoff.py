@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front, parse_knobs
+from pipelines.tradeoff import BASE_STEPS, COMBOS, KNOBS, grid, knob_flags, pareto_front, parse_knobs
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -69,3 +69,29 @@ def test_knob_values_can_be_chosen():
             assert "knob" in str(e)
         else:
             raise AssertionError(f"{bad} accepted")
+
+
+def test_presets_are_the_measured_combinations():
+    from dataclasses import asdict
+
+    from tridehaze_plugin.registry import REGISTRY, load_all
+
+    load_all()
+    base = REGISTRY.get("method", "tri-dehaze").make_config()
+    for preset, combo in (("tri-dehaze-fast", "fast"), ("tri-dehaze-quality", "quality")):
+        cfg = REGISTRY.get("method", preset).make_config()
+        assert cfg.method_name == preset
+        flags, steps = knob_flags(COMBOS[combo])
+        assert cfg.max_steps == (steps or base.max_steps)
+        # every knob of the combination is applied, and nothing else differs from tri-dehaze
+        changed = {}
+        a, b = asdict(base)["pipeline"], asdict(cfg)["pipeline"]
+        for group in a:
+            if isinstance(a[group], dict):
+                changed.update({f"{group}.{k}": v for k, v in b[group].items() if a[group][k] != v})
+            elif a[group] != b[group]:
+                changed[group] = b[group]
+        flag_names = {f.removeprefix("--pipeline.").replace("-", "_") for f in flags[::2]}
+        assert set(changed) == flag_names, (preset, changed, flag_names)
+        for flag, value in zip(flags[::2], flags[1::2], strict=True):
+            assert str(changed[flag.removeprefix("--pipeline.").replace("-", "_")]) == value
