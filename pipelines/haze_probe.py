@@ -13,14 +13,19 @@ the two rays of a pair cross different amounts of it and whole pairs of views di
 fit. Per pair of views the probe measures the median residual against its spread
 (``effect`` = |median| / MAD, and ``F`` = n * effect^2, which grows with the evidence).
 
-Decision (thresholds measured on 34 generated scenes, docs/tradeoff.md):
-  * optical depth beta * (median point distance) < 0.1 (T > 0.9 at a typical distance), or a dark
-    channel that does not thicken with distance (rank correlation of -ln T_dcp with the points'
-    distance < 0.5: exposure changes or glossy surfaces, not haze): ``none``;
-  * median F > 15 and median effect > 0.3: ``triplane`` (the haze varies across the scene);
-  * otherwise ``constant`` (one extinction and one direction-dependent light explain the views).
-Without seed points (or too few shared between views) nothing can be measured and the field is
-used, the choice that can represent any medium.
+Classification (thresholds measured on 34 generated scenes, docs/tradeoff.md):
+  * ``none``: optical depth beta * (median point distance) < 0.1 (T > 0.9 at a typical distance),
+    or a dark channel that does not thicken with distance (rank correlation of -ln T_dcp with the
+    points' distance < 0.5: exposure changes or glossy surfaces, not haze);
+  * ``varying``: median F > 15 and median effect > 0.3 (pairs of views cross different haze);
+  * ``homogeneous``: otherwise (one extinction explains every pair).
+Without seed points (or too few shared between views) nothing can be measured: ``unknown``.
+
+The backend for each class (:data:`BACKEND_FOR`) is the one measured best, not the one that looks
+simplest: in this engine the ``constant`` medium loses 5-6 dB of restoration PSNR to the tri-plane
+even on a perfectly uniform medium, at no lower cost (docs/tradeoff.md), so homogeneous haze also
+gets the tri-plane; a capture without haze gets no medium (the tri-plane there invents haze: 17.3
+vs 30.7 dB).
 """
 
 from __future__ import annotations
@@ -39,6 +44,8 @@ from pipelines.datamanager import DataManager
 
 NONE_OPTICAL_DEPTH = 0.1
 """Below this optical depth at the median point distance the haze is negligible (T > 0.9)."""
+BACKEND_FOR = {"none": "none", "homogeneous": "triplane", "varying": "triplane", "unknown": "triplane"}
+"""Medium backend per haze class, from the measured comparison (docs/tradeoff.md)."""
 MIN_DEPTH_TREND = 0.5
 """Haze thickens with distance: below this rank correlation of -ln T_dcp with the distance of the
 seed points, what the pair fit calls extinction is something else (exposure changes, glossy or
@@ -63,8 +70,8 @@ GRID_CELLS = 16
 class HazeProbe:
     """The probe's measurements and verdict (all logged)."""
 
-    backend: str
-    """``none``, ``constant`` or ``triplane``."""
+    haze: str
+    """``none``, ``homogeneous``, ``varying`` or ``unknown``."""
     reason: str
     beta: float = math.nan
     """Extinction fitted over all view pairs (1 / scene unit)."""
@@ -81,11 +88,17 @@ class HazeProbe:
     pairs: int = 0
     views: int = 0
 
+    @property
+    def backend(self) -> str:
+        """The medium backend ``auto`` resolves to."""
+        return BACKEND_FOR[self.haze]
+
     def message(self) -> str:
+        head = f"haze probe: {self.haze} haze -> medium backend {self.backend}"
         if math.isnan(self.beta):
-            return f"haze probe: medium backend {self.backend} ({self.reason})"
+            return f"{head} ({self.reason})"
         return (
-            f"haze probe: medium backend {self.backend} ({self.reason}; beta {self.beta:.4g} per scene unit, "
+            f"{head} ({self.reason}; beta {self.beta:.4g} per scene unit, "
             f"dark-channel depth trend {self.depth_trend:.2f}, "
             f"optical depth {self.optical_depth:.3f} at the median distance {self.median_distance:.3g}, "
             f"pair variation F {self.variation_f:.1f} / effect {self.variation_effect:.2f}, "
@@ -93,7 +106,7 @@ class HazeProbe:
         )
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "backend": self.backend}
 
 
 def _visible(points: torch.Tensor, cam, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -125,9 +138,7 @@ def _rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
 def probe_haze(dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int = 0) -> HazeProbe:
     """Measure the training views (see the module docstring) and choose a medium backend."""
     if points is None or len(points) < MIN_SHARED:
-        return HazeProbe(
-            "triplane", "no seed points to measure the haze with; the field can represent any medium"
-        )
+        return HazeProbe("unknown", "no seed points to measure the haze with")
     pts = points.detach().float().cpu()
     if len(pts) > MAX_POINTS:
         gen = torch.Generator().manual_seed(seed)
@@ -166,9 +177,8 @@ def probe_haze(dm: DataManager, views: list[int], points: torch.Tensor | None, s
             xs.append(dist[b, m] - dist[a, m])
     if len(ys) < 3:
         return HazeProbe(
-            "triplane", f"only {len(ys)} view pairs share enough seed points; the field can represent any medium",
-            pairs=len(ys), views=v,
-        )  # fmt: skip
+            "unknown", f"only {len(ys)} view pairs share enough seed points", pairs=len(ys), views=v
+        )
     x, y = np.concatenate(xs), np.concatenate(ys)
     beta = float((x * y).sum() / max(float((x * x).sum()), 1e-12))
     f_stats, effects = [], []
@@ -182,25 +192,25 @@ def probe_haze(dm: DataManager, views: list[int], points: torch.Tensor | None, s
     seen = np.isfinite(dist)
     depth_trend = _rank_correlation(dist[seen], dcp_tau[seen])
     out = HazeProbe(
-        "constant", "", beta=beta, median_distance=median_distance, optical_depth=beta * median_distance,
+        "homogeneous", "", beta=beta, median_distance=median_distance, optical_depth=beta * median_distance,
         variation_f=float(np.median(f_stats)), variation_effect=float(np.median(effects)), depth_trend=depth_trend, pairs=len(ys), views=v,
     )  # fmt: skip
     if out.optical_depth < NONE_OPTICAL_DEPTH:
-        out.backend = "none"
+        out.haze = "none"
         out.reason = (
             f"no haze to model: optical depth {out.optical_depth:.3f} < {NONE_OPTICAL_DEPTH} "
             f"(T {math.exp(-out.optical_depth):.2f}) at a typical distance"
         )
     elif depth_trend < MIN_DEPTH_TREND:
-        out.backend = "none"
+        out.haze = "none"
         out.reason = (
             f"no haze to model: the dark channel does not thicken with distance (rank correlation "
             f"{depth_trend:.2f} < {MIN_DEPTH_TREND:g})"
         )
     elif out.variation_f > VARYING_F and out.variation_effect > VARYING_EFFECT:
-        out.backend = "triplane"
+        out.haze = "varying"
         out.reason = (
-            f"the haze varies across the scene: view pairs disagree with one extinction "
+            f"view pairs disagree with one extinction "
             f"(F {out.variation_f:.1f} > {VARYING_F:g}, effect {out.variation_effect:.2f} > {VARYING_EFFECT:g})"
         )
     else:

@@ -114,7 +114,7 @@ def tri_dehaze_constant() -> TrainerConfig:
     (
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
         "tri-plane, at most 20k Gaussians that stop growing when the loss stops improving, and the "
-        "medium chosen by the haze probe (none / constant / tri-plane)."
+        "medium chosen by the haze probe (none for a clear capture, else the tri-plane)."
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:

@@ -91,8 +91,9 @@ class MediumConfig(ComponentConfig):
 
     backend: Annotated[str, RegistryChoice("medium", allow=("auto",))] = "none"
     """Medium representation: ``triplane``, ``voxel``, ``mlp``, ``fourier``, ``constant``,
-    ``gaussian-bound``, ``none``, or ``auto``: a haze probe of the training views picks none, constant
-    or triplane before training and logs why (docs/tradeoff.md)."""
+    ``gaussian-bound``, ``none``, or ``auto``: before training a haze probe of the training views
+    classifies the haze (none / homogeneous / varying), picks the backend measured best for that
+    class (none, else triplane) and logs why (docs/tradeoff.md)."""
     resolution: int = 64
     """Tri-plane side (three planes of resolution^2 cells); other grids match its feature budget."""
     channels: int = 8

@@ -22,7 +22,8 @@ from tridehaze_plugin.cli.train import parse_args
 
 PROBE_SCENE = {"num_views": 8, "width": 64, "height": 48, "samples": 16, "num_points": 1500}
 """Big enough for the probe's statistics (8 views: 28 pairs), a second to generate."""
-EXPECTED = {"none": "none", "uniform": "constant", "patchy": "triplane"}
+EXPECTED = {"none": "none", "uniform": "homogeneous", "patchy": "varying"}
+"""Haze class per td-synth preset (the backend follows from BACKEND_FOR)."""
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +45,8 @@ def _probe(path: Path, downscale: int = 1):
 @pytest.mark.parametrize("haze", list(EXPECTED))
 def test_probe_chooses_the_medium_the_scene_has(scenes, layout, haze):
     p = _probe(scenes[layout, haze])
-    assert p.backend == EXPECTED[haze], p.message()
+    assert p.haze == EXPECTED[haze], p.message()
+    assert p.backend == ("none" if haze == "none" else "triplane")  # measured best per class
     assert p.views == 7 and p.pairs >= 20  # 8 views, one held out for testing
     if haze == "none":
         assert p.optical_depth < NONE_OPTICAL_DEPTH
@@ -54,19 +56,19 @@ def test_probe_chooses_the_medium_the_scene_has(scenes, layout, haze):
         assert p.variation_f < VARYING_F / 3 and p.variation_effect < VARYING_EFFECT
     if haze == "patchy":
         assert p.variation_f > 3 * VARYING_F and p.variation_effect > 2 * VARYING_EFFECT
-    assert p.backend in p.message() and math.isfinite(p.beta)
+    assert f"{p.haze} haze -> medium backend {p.backend}" in p.message() and math.isfinite(p.beta)
 
 
 def test_probe_without_seed_points_keeps_the_field(scenes):
     scene = load_scene(DataConfig(data=scenes["courtyard", "uniform"]))
     p = probe_haze(DataManager(scene, torch.device("cpu")), scene.train_indices, None)
-    assert p.backend == "triplane" and "no seed points" in p.reason
+    assert p.haze == "unknown" and p.backend == "triplane" and "no seed points" in p.reason
 
 
 @pytest.mark.parametrize("name", ["statue", "beer"])
 def test_probe_clear_real_photos_get_no_medium(name):
     p = _probe(require_real(name), downscale=8)
-    assert p.backend == "none", p.message()
+    assert p.haze == "none" and p.backend == "none", p.message()
 
 
 def test_auto_backend_is_resolved_saved_and_logged(scenes, tmp_path):
@@ -84,4 +86,4 @@ def test_auto_backend_is_resolved_saved_and_logged(scenes, tmp_path):
     assert saved["pipeline"]["medium"]["backend"] == "triplane"  # reloading never probes again
     assert type(t.pipeline.medium).__name__ == "TriplaneField"
     [d] = [json.loads(x) for x in (t.run_dir / "logs" / "decisions.jsonl").read_text().splitlines()]
-    assert d["step"] == 0 and "haze probe: medium backend triplane" in d["message"]
+    assert d["step"] == 0 and "haze probe: varying haze -> medium backend triplane" in d["message"]
