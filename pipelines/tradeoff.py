@@ -119,7 +119,9 @@ def parse_knobs(specs: list[str] | None) -> dict[str, tuple[str, ...]]:
     return chosen
 
 
-def grid(knobs: list[str] | None = None, combos: bool = True, base_steps: int = BASE_STEPS) -> list[Variant]:
+def grid(
+    knobs: list[str] | None = None, combos: bool | list[str] = True, base_steps: int = BASE_STEPS
+) -> list[Variant]:
     """The base run, each knob's other values one at a time, then the combinations; ``base_steps``
     rescales every step count (names keep the values at the default budget). ``knobs`` as in
     :func:`parse_knobs`."""
@@ -128,8 +130,11 @@ def grid(knobs: list[str] | None = None, combos: bool = True, base_steps: int = 
     for knob in KNOBS:
         for value in chosen.get(knob.name, ()):
             variants.append(_variant(f"{knob.name}={value}", {knob.name: value}, base_steps))
-    if combos:
-        variants += [_variant(name, settings, base_steps) for name, settings in COMBOS.items()]
+    chosen_combos = list(COMBOS) if combos is True else list(combos or [])
+    for name in chosen_combos:
+        if name not in COMBOS:
+            raise ValueError(f"unknown combination {name!r}; use one of {', '.join(COMBOS)}")
+        variants.append(_variant(name, COMBOS[name], base_steps))
     return variants
 
 

@@ -44,7 +44,7 @@ def test_td_bench_tradeoff_tiny(eval_scene, tmp_path):
     train_args = "--pipeline.warmup-steps 2 --pipeline.model.sh-degree 0"
     r = subprocess.run(
         [sys.executable, "-m", "tridehaze_plugin.cli.bench", "tradeoff", "--scenes", str(eval_scene),
-         "--output-dir", str(out), "--knobs", "samples", "--no-combos", "--base-steps", "3", "--lpips", "off",
+         "--output-dir", str(out), "--knobs", "samples", "--combos", "--base-steps", "3", "--lpips", "off",
          f"--train-args={train_args}"],
         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600,
     )  # fmt: skip
@@ -60,8 +60,8 @@ def test_td_bench_tradeoff_tiny(eval_scene, tmp_path):
 
 
 def test_knob_values_can_be_chosen():
-    names = [v.name for v in grid(["samples=4,8", "steps=500"], combos=False)]
-    assert names == ["base", "steps=500", "samples=4", "samples=8"]
+    names = [v.name for v in grid(["samples=4,8", "steps=500"], combos=["fast"])]
+    assert names == ["base", "steps=500", "samples=4", "samples=8", "fast"]
     for bad in (["samples=5"], ["nope"], ["samples=,"]):
         try:
             parse_knobs(bad)

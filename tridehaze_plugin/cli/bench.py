@@ -44,8 +44,9 @@ class TradeoffArgs:
     coarse-rays, sh-degree, rasterizer, medium)."""
     base_steps: int = BASE_STEPS
     """Step budget of the base configuration; the steps knob's values scale with it."""
-    combos: bool = True
-    """Also run the combined preset candidates (``--no-combos`` to skip)."""
+    combos: list[str] = field(default_factory=lambda: ["fast", "quality"])
+    """Combined settings (the presets tri-dehaze-fast / -quality) to run as well; ``--combos`` with
+    no names runs none."""
     jobs: int = 2
     """Runs in parallel (separate processes)."""
     threads: int = 1
