@@ -13,7 +13,7 @@ the two rays of a pair cross different amounts of it and whole pairs of views di
 fit. Per pair of views the probe measures the median residual against its spread
 (``effect`` = |median| / MAD, and ``F`` = n * effect^2, which grows with the evidence).
 
-Classification (thresholds measured on 34 generated scenes, docs/tradeoff.md):
+Classification (thresholds calibrated on 49 generated scenes, docs/tradeoff.md):
   * ``none``: optical depth beta * (median point distance) < 0.1 (T > 0.9 at a typical distance),
     or a dark channel that does not thicken with distance (rank correlation of -ln T_dcp with the
     points' distance < 0.5: exposure changes or glossy surfaces, not haze);
