@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 import warnings
 from dataclasses import asdict, dataclass
 
@@ -87,6 +88,8 @@ class HazeProbe:
     """Rank correlation of the dark channel's optical depth -ln T_dcp with the point distance."""
     pairs: int = 0
     views: int = 0
+    seconds: float = 0.0
+    """Time the probe took."""
 
     @property
     def backend(self) -> str:
@@ -94,7 +97,7 @@ class HazeProbe:
         return BACKEND_FOR[self.haze]
 
     def message(self) -> str:
-        head = f"haze probe: {self.haze} haze -> medium backend {self.backend}"
+        head = f"haze probe ({self.seconds:.2f} s): {self.haze} haze -> medium backend {self.backend}"
         if math.isnan(self.beta):
             return f"{head} ({self.reason})"
         return (
@@ -137,6 +140,13 @@ def _rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 def probe_haze(dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int = 0) -> HazeProbe:
     """Measure the training views (see the module docstring) and choose a medium backend."""
+    start = time.perf_counter()
+    probe = _probe(dm, views, points, seed)
+    probe.seconds = time.perf_counter() - start
+    return probe
+
+
+def _probe(dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int) -> HazeProbe:
     if points is None or len(points) < MIN_SHARED:
         return HazeProbe("unknown", "no seed points to measure the haze with")
     pts = points.detach().float().cpu()

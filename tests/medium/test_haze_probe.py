@@ -57,6 +57,7 @@ def test_probe_chooses_the_medium_the_scene_has(scenes, layout, haze):
     if haze == "patchy":
         assert p.variation_f > 3 * VARYING_F and p.variation_effect > 2 * VARYING_EFFECT
     assert f"{p.haze} haze -> medium backend {p.backend}" in p.message() and math.isfinite(p.beta)
+    assert 0 < p.seconds < 30
 
 
 def test_probe_without_seed_points_keeps_the_field(scenes):
@@ -86,4 +87,4 @@ def test_auto_backend_is_resolved_saved_and_logged(scenes, tmp_path):
     assert saved["pipeline"]["medium"]["backend"] == "triplane"  # reloading never probes again
     assert type(t.pipeline.medium).__name__ == "TriplaneField"
     [d] = [json.loads(x) for x in (t.run_dir / "logs" / "decisions.jsonl").read_text().splitlines()]
-    assert d["step"] == 0 and "haze probe: varying haze -> medium backend triplane" in d["message"]
+    assert d["step"] == 0 and "varying haze -> medium backend triplane" in d["message"]
