@@ -403,6 +403,12 @@ class GaussianPipeline(Pipeline):
         self._decisions, self.densifier.decisions = [], []
         return out
 
+    def _apply(self, fn, *args, **kwargs):  # noqa: ANN001, ANN202
+        # moving the pipeline replaces its buffers: keep the densifier on the same plateau tensor
+        out = super()._apply(fn, *args, **kwargs)
+        self.densifier.plateau = self.densify_plateau
+        return out
+
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
         # checkpoints written before plateau growth existed: keep this run's "still growing" state
         state_dict.setdefault(prefix + "densify_plateau", self.densify_plateau.clone())

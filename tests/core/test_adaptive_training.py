@@ -63,6 +63,10 @@ def test_plateau_growth_stops_logs_and_resumes(scene, tmp_path):
     r = _train(scene, tmp_path, 60, *plateau, "--no-eval-at-end", resume=t.run_dir)
     assert r.pipeline.densifier.growth_stopped_at == 20
     assert r.pipeline.stats()["gaussians"] <= t.pipeline.stats()["gaussians"]
+    # moving the pipeline (new buffer tensors) keeps the densifier on the checkpointed state
+    r.pipeline.half()
+    assert r.pipeline.densifier.plateau is r.pipeline.densify_plateau
+    assert r.pipeline.densifier.growth_stopped_at == 20
 
 
 def test_early_stop_on_heldout_plateau(scene, tmp_path):
