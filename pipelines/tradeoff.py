@@ -82,17 +82,10 @@ def preset_config(combo: str, method_name: str):  # -> TrainerConfig (imported l
 
 
 def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
-    overrides: list[str] = []
-    steps = base_steps
-    for knob in KNOBS:
-        value = settings.get(knob.name)
-        if value is None or value == knob.values[0]:
-            continue
-        if knob.flag is None:  # step counts scale with the budget (the values are for BASE_STEPS)
-            steps = max(1, round(int(value) * base_steps / BASE_STEPS))
-        else:
-            overrides += [knob.flag, value]
-    return Variant(name, BASE_METHOD, tuple(overrides), label=name, max_steps=steps)
+    overrides, steps = knob_flags(settings)
+    # step counts scale with the budget (the knob's values are for BASE_STEPS)
+    scaled = base_steps if steps is None else max(1, round(steps * base_steps / BASE_STEPS))
+    return Variant(name, BASE_METHOD, tuple(overrides), label=name, max_steps=scaled)
 
 
 def parse_knobs(specs: list[str] | None) -> dict[str, tuple[str, ...]]:
