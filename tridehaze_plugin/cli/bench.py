@@ -79,8 +79,15 @@ def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]
             **{f"psnr_{s}": by_scene.get(s) for s in scenes},
         })  # fmt: skip
     front = set(pareto_front(rows))
+    # a second front on perceptual quality (lower LPIPS): longer training sharpens detail even where
+    # PSNR no longer moves
+    for row in rows:
+        row["neg_lpips"] = -row["lpips"] if row["lpips"] is not None else None
+    front_lpips = set(pareto_front(rows, gain="neg_lpips"))
     for row in rows:
         row["pareto"] = row["name"] in front
+        row["pareto_lpips"] = row["name"] in front_lpips
+        del row["neg_lpips"]
     return rows
 
 
@@ -90,7 +97,7 @@ def _f(v: Any, digits: int) -> str:
 
 def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
     lines = [
-        "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front | "
+        "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front (PSNR / LPIPS) | "
         + " | ".join(f"PSNR {s}" for s in scenes)
         + " |",
         "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(scenes),
@@ -99,7 +106,8 @@ def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
         lines.append(
             f"| {r['name']} | {r['steps'] or '-'} | {_f(r['wall_seconds'], 0)} | {_f(r['cpu_seconds'], 0)} | "
             f"{_f(r['peak_rss_mb'], 0)} | {_f(r['gaussians'], 0)} | {_f(r['psnr'], 2)} | {_f(r['ssim'], 3)} | "
-            f"{_f(r['lpips'], 3)} | {'**yes**' if r['pareto'] else ''} | "
+            f"{_f(r['lpips'], 3)} | {'**PSNR**' if r['pareto'] else ''}"
+            f"{' / ' if r['pareto'] and r['pareto_lpips'] else ''}{'**LPIPS**' if r['pareto_lpips'] else ''} | "
             + " | ".join(_f(r.get(f"psnr_{s}"), 2) for s in scenes)
             + " |"
         )
@@ -190,10 +198,9 @@ def tradeoff(args: TradeoffArgs) -> None:
     )
     plot(rows, out / "tradeoff.png")
     print(header + md)
-    print(
-        "Pareto front (time -> PSNR): "
-        + ", ".join(r["name"] for r in sorted(rows, key=lambda r: r["wall_seconds"] or 0) if r["pareto"])
-    )
+    by_time = sorted(rows, key=lambda r: r["wall_seconds"] or 0)
+    print("Pareto front (time -> PSNR): " + ", ".join(r["name"] for r in by_time if r["pareto"]))
+    print("Pareto front (time -> LPIPS): " + ", ".join(r["name"] for r in by_time if r["pareto_lpips"]))
     failed = [r for r in results if r["status"] != "ok"]
     if failed:
         for r in failed:
