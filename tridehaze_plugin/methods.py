@@ -14,6 +14,9 @@ from components.medium.base import MediumConfig
 from pipelines.config import TrainerConfig
 from tridehaze_plugin.registry import register
 
+MEASURED = "Measured on three generated 128x96 hazy scenes (td-bench tradeoff, 2 shared CPU cores): "
+"""Prefix of the measured figures in the preset descriptions (wall time of training + evaluation)."""
+
 
 @dataclass(frozen=True)
 class MethodSpec:
@@ -60,7 +63,10 @@ def vanilla_gs() -> TrainerConfig:
         "Tri-DehazeGS: clean 3D Gaussians and a view-shared tri-plane medium (extinction + "
         "direction-dependent light), ray-marched and composited I = J*T + S; Stage I fits both "
         "with depth and dark-channel priors, Stage II freezes the medium and compensates the "
-        "clean branch's gradient by 1/T (MD-TGC)."
+        "clean branch's gradient by 1/T (MD-TGC): the paper's settings. "
+        + MEASURED
+        + "3000 steps 993 s, restoration PSNR 19.28 dB / SSIM 0.668 / LPIPS 0.207 "
+        "(--max-steps 1500: 325 s, 19.12 dB)."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -113,8 +119,11 @@ def tri_dehaze_constant() -> TrainerConfig:
     "tri-dehaze-fast",
     (
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
-        "tri-plane, at most 20k Gaussians that stop growing when the loss stops improving, and the "
-        "medium chosen by the haze probe (none for a clear capture, else the tri-plane)."
+        "tri-plane, at most 20k Gaussians with plateau growth, and the medium chosen by the haze "
+        "probe (none for a clear capture, else the tri-plane). "
+        + MEASURED
+        + "168 s (77 s of CPU), 18.78 dB / SSIM 0.600 / LPIPS 0.351; on a scene without haze 30.8 dB "
+        "where tri-dehaze's tri-plane gives 17.3."
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:
@@ -128,7 +137,10 @@ def tri_dehaze_fast() -> TrainerConfig:
     "tri-dehaze-quality",
     (
         "Tri-DehazeGS for the best clean scene: 3000 steps with slower densification (grow-grad2d "
-        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step."
+        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step. "
+        + MEASURED
+        + "796 s, 19.33 dB / SSIM 0.676 / LPIPS 0.216 (2.5x fewer Gaussians than tri-dehaze's "
+        "3000 steps)."
     ),
 )
 def tri_dehaze_quality() -> TrainerConfig:

@@ -95,3 +95,14 @@ def test_presets_are_the_measured_combinations():
         assert set(changed) == flag_names, (preset, changed, flag_names)
         for flag, value in zip(flags[::2], flags[1::2], strict=True):
             assert str(changed[flag.removeprefix("--pipeline.").replace("-", "_")]) == value
+
+
+def test_preset_descriptions_state_measured_time_and_quality():
+    import re
+
+    from tridehaze_plugin.registry import REGISTRY, load_all
+
+    load_all()
+    for name in ("tri-dehaze-fast", "tri-dehaze", "tri-dehaze-quality"):
+        text = REGISTRY.get("method", name).description
+        assert re.search(r"\d+ s\b.*\d+\.\d+ dB / SSIM \d\.\d+ / LPIPS \d\.\d+", text), (name, text)
