@@ -14,6 +14,7 @@ import pytest
 import components.synth.demo as demo
 from components.data.config import DataConfig
 from components.data.loader import load_scene
+from components.synth.medium import PRESETS
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.cli.synth import main
 
@@ -90,7 +91,8 @@ def test_gallery(capsys, tmp_path):
     code, stdout, _ = run_inproc(capsys, *args)
     assert code == 0 and "homogeneous" in stdout
     img = cv2.imread(str(png))
-    assert img is not None and img.shape[1] == 92 + 6 * (32 + 2) and img.shape[0] == 30 + 5 * (24 + 2)
+    rows = len(PRESETS)  # one row per haze preset
+    assert img is not None and img.shape[1] == 92 + 6 * (32 + 2) and img.shape[0] == 30 + rows * (24 + 2)
 
 
 def test_demo_is_generated_once_and_reused(tmp_path, monkeypatch):
