@@ -65,9 +65,10 @@ class Densifier:
         self.count: Tensor | None = None  # [N]
         self.loss_sum = torch.zeros((), dtype=torch.float64)  # photometric loss since the last refinement
         self.loss_steps = 0
-        self.plateau = torch.tensor([-1.0, math.nan], dtype=torch.float64)
-        """[step growth stopped at (-1: growing), mean loss of the previous window]; a tensor so the
-        owning pipeline can keep it in its checkpoints (resume continues the same decision)."""
+        self.plateau = torch.tensor([-1.0, -1.0], dtype=torch.float64)
+        """[step growth stopped at (-1: growing), mean loss of the previous window (-1: none yet)]; a
+        tensor so the owning pipeline can keep it in its checkpoints (resume continues the same
+        decision). Finite on purpose: checkpoints are checked for non-finite values."""
         self.decisions: list[str] = []
         """Human-readable growth decisions, newest last (the trainer prints them)."""
 
@@ -115,7 +116,7 @@ class Densifier:
         self.plateau[1] = mean
         self.loss_sum = torch.zeros((), dtype=torch.float64)
         self.loss_steps = 0
-        if math.isnan(prev) or prev <= 0 or done < self.config.refine_start:
+        if prev <= 0 or done < self.config.refine_start:
             return True
         gain = (prev - mean) / prev
         if gain < self.config.plateau_min_improvement:
