@@ -63,6 +63,7 @@ def test_viewer_in_a_real_browser(tmp_path):
     scene = tiny_hazy_scene(tmp_path / "scene", width=40, height=30, test_every=0)
     proc, url, lines = start_training(scene, tmp_path / "out")
     shots = tmp_path / "shots"
+    run = None
     try:
         run = subprocess.run(
             [node, str(BROWSER_CHECK), "--url", url, "--out", str(shots), "--outputs", ",".join(OUTPUTS),
@@ -77,7 +78,11 @@ def test_viewer_in_a_real_browser(tmp_path):
             code = proc.wait(60)
         except subprocess.TimeoutExpired:
             proc.kill()
-            raise
+            browser = (run.stdout + run.stderr) if run is not None else "(browser check did not finish)"
+            raise AssertionError(
+                "td-train did not exit within 60 s of Ctrl-C\n--- browser check ---\n"
+                f"{browser}\n--- td-train ---\n{''.join(lines)}"
+            ) from None
     assert code == 130, "".join(lines)
     assert any("interrupted at step" in line for line in lines), "".join(lines)
 
