@@ -32,7 +32,12 @@ def start_training(scene, out) -> tuple[subprocess.Popen, str, list[str]]:
            "--vis", "viewer", "--viewer.port", "0", "--viewer.max-resolution", "96",
            "--viewer.moving-resolution", "48", "--viewer.thumbnail-size", "16", "--viewer.refresh-seconds", "0.5",
            *TRAIN_FLAGS]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # Ctrl-C must reach td-train as in a terminal even when the suite itself was started in the
+    # background (a shell without job control starts it with SIGINT ignored, which children inherit)
+    proc = subprocess.Popen(
+        cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
     lines: list[str] = []
     url: list[str] = []
     found = threading.Event()
