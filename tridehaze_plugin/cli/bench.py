@@ -1,6 +1,6 @@
 """``td-bench``: measured benchmarks that need whole training runs.
 
-    td-bench tradeoff --scenes S1 S2 S3 --output-dir tradeoff [--knobs steps samples ...] [--jobs 2]
+    td-bench tradeoff --scenes S1 S2 S3 --output-dir tradeoff [--knobs steps samples=4,8 ...] [--combos fast]
 
 ``tradeoff`` trains tri-dehaze with every time-costing knob varied one at a time around the default
 (plus the preset candidates), evaluates each run (td-eval) and reports per configuration the wall
