@@ -54,10 +54,10 @@ class AblationRunner:
         self._lock = threading.Lock()
         self._stopping = False
         self.peak_rss_mb: dict[int, float] = {}
+        """Peak resident memory of the current job's processes, per worker thread."""
         self.cpu_seconds: dict[int, float] = {}
         """Per worker thread: CPU time (user + system) of the children of the current job, which
         unlike wall time hardly changes when other work shares the cores."""
-        """Peak resident memory of the current job's processes, per worker thread."""
 
     # ------------------------------------------------------------------------------- paths
     def run_dir(self, job: Job) -> Path:
@@ -105,11 +105,8 @@ class AblationRunner:
         try:
             _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak memory, unlike getrusage
             proc.returncode = os.waitstatus_to_exitcode(status)
-            self.peak_rss_mb[threading.get_ident()] = max(
-                self.peak_rss_mb.get(threading.get_ident(), 0.0),
-                usage.ru_maxrss / 1024.0,  # KiB -> MiB
-            )
             me = threading.get_ident()
+            self.peak_rss_mb[me] = max(self.peak_rss_mb.get(me, 0.0), usage.ru_maxrss / 1024.0)  # KiB -> MiB
             self.cpu_seconds[me] = self.cpu_seconds.get(me, 0.0) + usage.ru_utime + usage.ru_stime
             return proc.returncode
         finally:

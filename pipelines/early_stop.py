@@ -75,7 +75,6 @@ class EarlyStopper:
         self.best = math.inf
         self.best_step = 0
         self.bad_checks = 0
-        self.history: list[tuple[int, float]] = []
         self.decisions: list[str] = []
 
     def due(self, done: int) -> bool:
@@ -83,7 +82,6 @@ class EarlyStopper:
 
     def update(self, done: int, loss: float) -> bool:
         """Record the held-out loss after ``done`` steps; True when training should stop."""
-        self.history.append((done, loss))
         if math.isinf(self.best) or loss < self.best * (1.0 - self.config.min_improvement):
             self.best, self.best_step, self.bad_checks = loss, done, 0
             return False

@@ -17,7 +17,7 @@ from torch import Tensor, nn
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModelConfig
-from components.losses.dcp import dcp_transmittance_loss
+from components.losses.dcp import DCPResult, dcp_transmittance_loss
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig
@@ -181,19 +181,21 @@ class GaussianPipeline(Pipeline):
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         self.init_info: dict[str, float | str] = {}
         self._decisions: list[str] = []
+        train = datamanager.train_indices
+        dcp_train: dict[int, DCPResult] = {}  # the probe's dark channels, reused by the priors below
         if config.medium.backend == "auto":
-            self._resolve_auto_medium(datamanager, seed)
+            dcp_train = dcp_per_view(datamanager, train)
+            self._resolve_auto_medium(datamanager, seed, dcp_train)
         self.medium = config.medium.setup(bounds=bounds).to(device)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
 
-        train = datamanager.train_indices
         uses_medium = self.medium.has_medium
         source = resolve_depth_prior(config.depth_prior, datamanager)
         needs_depth = training and config.lambda_depth > 0 and source != "none"
         dehaze_inputs = training and config.input_dehaze == "dcp"
         needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
         needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
-        dcp = dcp_per_view(datamanager, train) if needs_dcp else {}
+        dcp = (dcp_train or dcp_per_view(datamanager, train)) if needs_dcp else {}
         self._targets = dehazed_views(datamanager, dcp) if dehaze_inputs else {}
         points, colors = scene.points, scene.point_colors
         if (uses_medium and config.init_medium or dehaze_inputs) and dcp:
@@ -234,12 +236,11 @@ class GaussianPipeline(Pipeline):
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
 
-    def _resolve_auto_medium(self, datamanager: DataManager, seed: int) -> None:
+    def _resolve_auto_medium(self, datamanager: DataManager, seed: int, dcp: dict[int, DCPResult]) -> None:
         """Replace ``auto`` by the probe's choice in the config itself, so the run's saved config
         names the medium it trained (reloading never probes again)."""
-        probe = probe_haze(datamanager, datamanager.train_indices, datamanager.scene.points, seed)
+        probe = probe_haze(datamanager, datamanager.train_indices, datamanager.scene.points, seed, dcp)
         self.config.medium = replace(self.config.medium, backend=probe.backend)
-        self.haze_probe = probe
         self._decisions.append(probe.message())
 
     # ----------------------------------------------------------------------------- schedule

@@ -16,7 +16,13 @@ import torch
 from torch import Tensor
 
 from components.losses.dcp import DCPResult, dehaze, estimate_dcp
-from components.losses.depth_priors import depth_from_dcp, depth_from_file, depth_from_sfm, project_points
+from components.losses.depth_priors import (
+    depth_from_dcp,
+    depth_from_file,
+    depth_from_sfm,
+    in_image,
+    project_points,
+)
 from pipelines.datamanager import DataManager
 
 DEPTH_PRIORS = ("auto", "files", "dcp", "sfm", "warmup", "none")
@@ -66,7 +72,7 @@ def estimate_medium(
         cam = dm.camera(i).to("cpu")
         pc, uv = project_points(points.detach().float().cpu(), cam.viewmats()[0], cam.Ks()[0])
         W, H = int(cam.width[0]), int(cam.height[0])
-        ok = (pc[:, 2] > 1e-3) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < W) & (uv[:, 1] < H)
+        ok = in_image(pc, uv, W, H, near=1e-3)
         if int(ok.sum()) == 0:
             continue
         t = torch.from_numpy(dcp[i].transmittance)  # [H, W]

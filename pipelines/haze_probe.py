@@ -39,8 +39,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
-from components.losses.dcp import estimate_dcp
-from components.losses.depth_priors import project_points
+from components.losses.dcp import DCPResult, estimate_dcp
+from components.losses.depth_priors import in_image, project_points
 from pipelines.datamanager import DataManager
 
 NONE_OPTICAL_DEPTH = 0.1
@@ -116,9 +116,9 @@ def _visible(points: torch.Tensor, cam, width: int, height: int) -> tuple[np.nda
     """Indices of the seed points in view and in front (a coarse z-buffer of the points themselves),
     their pixel coordinates [M, 2] and distances [M]."""
     pc, uv = project_points(points, cam.viewmats()[0].float(), cam.Ks()[0].float())
+    ok = in_image(pc, uv, width, height, near=1e-6)  # [M]
     pc, uv = pc.numpy(), uv.numpy()
-    ok = (pc[:, 2] > 1e-6) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < width) & (uv[:, 1] < height)
-    idx = np.nonzero(ok)[0]
+    idx = np.nonzero(ok.numpy())[0]
     px = uv[idx].astype(np.int64)  # [M, 2]
     z = pc[idx, 2]
     cell = max(max(width, height) // GRID_CELLS, 1)
@@ -138,15 +138,24 @@ def _rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
-def probe_haze(dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int = 0) -> HazeProbe:
-    """Measure the training views (see the module docstring) and choose a medium backend."""
+def probe_haze(
+    dm: DataManager,
+    views: list[int],
+    points: torch.Tensor | None,
+    seed: int = 0,
+    dcp: dict[int, DCPResult] | None = None,
+) -> HazeProbe:
+    """Measure the training views (see the module docstring) and choose a medium backend.
+    ``dcp``: dark-channel results already computed per view (estimated here where missing)."""
     start = time.perf_counter()
-    probe = _probe(dm, views, points, seed)
+    probe = _probe(dm, views, points, seed, dcp or {})
     probe.seconds = time.perf_counter() - start
     return probe
 
 
-def _probe(dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int) -> HazeProbe:
+def _probe(
+    dm: DataManager, views: list[int], points: torch.Tensor | None, seed: int, dcps: dict[int, DCPResult]
+) -> HazeProbe:
     if points is None or len(points) < MIN_SHARED:
         return HazeProbe("unknown", "no seed points to measure the haze with")
     pts = points.detach().float().cpu()
@@ -161,7 +170,7 @@ def _probe(dm: DataManager, views: list[int], points: torch.Tensor | None, seed:
     airlights, dcp_tau = [], np.full((v, n), np.nan, np.float32)
     for a, i in enumerate(views):
         img = dm.image(i).cpu().numpy()  # [H, W, 3]
-        dcp = estimate_dcp(img)
+        dcp = dcps[i] if i in dcps else estimate_dcp(img)
         airlights.append(dcp.airlight)
         cam = dm.camera(i).to("cpu")
         idx, px, d = _visible(pts, cam, int(cam.width[0]), int(cam.height[0]))

@@ -131,8 +131,15 @@ def grid(
     return variants
 
 
-def pareto_front(points: list[dict[str, Any]], cost: str = "wall_seconds", gain: str = "psnr") -> list[str]:
-    """Names of the points no other point beats on both cost (lower) and gain (higher)."""
+def pareto_front(
+    points: list[dict[str, Any]],
+    cost: str = "wall_seconds",
+    gain: str = "psnr",
+    higher_is_better: bool = True,
+) -> list[str]:
+    """Names of the points no other point beats on both cost (lower) and gain (higher, or lower
+    with ``higher_is_better=False``, e.g. LPIPS)."""
+    sign = 1.0 if higher_is_better else -1.0
     front = []
     for p in points:
         if p.get(cost) is None or p.get(gain) is None:
@@ -142,8 +149,8 @@ def pareto_front(points: list[dict[str, Any]], cost: str = "wall_seconds", gain:
             and q.get(cost) is not None
             and q.get(gain) is not None
             and q[cost] <= p[cost]
-            and q[gain] >= p[gain]
-            and (q[cost] < p[cost] or q[gain] > p[gain])
+            and sign * q[gain] >= sign * p[gain]
+            and (q[cost] < p[cost] or sign * q[gain] > sign * p[gain])
             for q in points
         )
         if not dominated:

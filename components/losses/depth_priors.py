@@ -86,6 +86,12 @@ def project_points(points: Tensor, viewmat: Tensor, K: Tensor) -> tuple[Tensor, 
     return pc, uv
 
 
+def in_image(pc: Tensor, uv: Tensor, width: int, height: int, near: float) -> Tensor:
+    """[M] bool: points in front of the camera (camera z > ``near``) that project inside the image
+    (``pc``, ``uv`` from :func:`project_points`)."""
+    return (pc[:, 2] > near) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < width) & (uv[:, 1] < height)
+
+
 def depth_from_sfm(
     points: Tensor,
     viewmat: Tensor,

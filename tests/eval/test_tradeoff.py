@@ -37,6 +37,9 @@ def test_pareto_front():
         {"name": "f", "wall_seconds": None, "psnr": 30.0},  # failed run: not on the front
     ]
     assert pareto_front(pts) == ["a", "b", "e"]
+    # a cost-like gain (LPIPS: lower is better) reads the same points the other way round
+    lp = [{"name": p["name"], "wall_seconds": p["wall_seconds"], "lpips": -p["psnr"]} for p in pts]
+    assert pareto_front(lp, gain="lpips", higher_is_better=False) == ["a", "b", "e"]
 
 
 def test_td_bench_tradeoff_tiny(eval_scene, tmp_path):

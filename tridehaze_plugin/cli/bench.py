@@ -81,13 +81,10 @@ def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]
     front = set(pareto_front(rows))
     # a second front on perceptual quality (lower LPIPS): longer training sharpens detail even where
     # PSNR no longer moves
-    for row in rows:
-        row["neg_lpips"] = -row["lpips"] if row["lpips"] is not None else None
-    front_lpips = set(pareto_front(rows, gain="neg_lpips"))
+    front_lpips = set(pareto_front(rows, gain="lpips", higher_is_better=False))
     for row in rows:
         row["pareto"] = row["name"] in front
         row["pareto_lpips"] = row["name"] in front_lpips
-        del row["neg_lpips"]
     return rows
 
 
