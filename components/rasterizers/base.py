@@ -173,8 +173,8 @@ class RasterizerConfig(ComponentConfig):
     eps2d: float = 0.3
     """Low-pass filter: added to the diagonal of every 2D covariance (pixels^2), as in 3DGS."""
     tile_size: int = 16
-    """Tile edge in pixels. A Gaussian reaches every pixel of the tiles its 3-sigma box overlaps
-    (gsplat semantics), so this changes which far-tail pixels it touches; keep 16 to match gsplat."""
+    """Tile edge in pixels for binning. The image does not depend on it (each Gaussian's box holds
+    every pixel its alpha reaches 1/255 in); 16 as gsplat, and what the cpu kernel is tuned for."""
 
     def setup(self, **kwargs: Any) -> Rasterizer:
         """Build the backend instance (``auto`` resolved now, in this process)."""

@@ -40,25 +40,25 @@ class Bins:
 
 @torch.no_grad()
 def tile_rects(means2d: Tensor, radii: Tensor, width: int, height: int, tile_size: int) -> Tensor:
-    """Tile range ``[x0, x1) x [y0, y1)`` [C, N, 4] int32 of each 3-sigma box; empty when culled.
+    """Tile range ``[x0, x1) x [y0, y1)`` [C, N, 4] int32 of each radius box; empty when culled.
 
-    Same float expressions as the reference's binning (``floor(x/ts - r/ts)`` .. ``ceil(x/ts +
-    r/ts)``), so both backends cover the same tiles.
+    ``radii`` [C, N, 2] are the per-axis half-extents. Same float expressions as the reference's
+    binning (``floor(x/ts - r/ts)`` .. ``ceil(x/ts + r/ts)``), so both backends cover the same tiles.
     """
     ts = float(tile_size)
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
-    r = radii.to(means2d.dtype) / ts  # [C, N]
+    r = radii.to(means2d.dtype) / ts  # [C, N, 2]
     mx, my = means2d[..., 0], means2d[..., 1]
     rects = torch.stack(
         [
-            torch.floor(mx / ts - r).clamp(0, tiles_x),
-            torch.ceil(mx / ts + r).clamp(0, tiles_x),
-            torch.floor(my / ts - r).clamp(0, tiles_y),
-            torch.ceil(my / ts + r).clamp(0, tiles_y),
+            torch.floor(mx / ts - r[..., 0]).clamp(0, tiles_x),
+            torch.ceil(mx / ts + r[..., 0]).clamp(0, tiles_x),
+            torch.floor(my / ts - r[..., 1]).clamp(0, tiles_y),
+            torch.ceil(my / ts + r[..., 1]).clamp(0, tiles_y),
         ],
         dim=-1,
     ).to(torch.int32)  # [C, N, 4]
-    return rects * (radii > 0)[..., None]
+    return rects * (radii.amax(dim=-1) > 0)[..., None]
 
 
 @torch.no_grad()
@@ -66,7 +66,7 @@ def bin_gaussians(
     lib: ctypes.CDLL, means2d: Tensor, depths: Tensor, radii: Tensor, width: int, height: int, tile_size: int
 ) -> Bins:
     """Front-to-back Gaussian lists of every tile (depth sort in torch, counting sort in C++)."""
-    C, N = radii.shape
+    C, N = radii.shape[:2]
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
     rects = tile_rects(means2d.detach(), radii, width, height, tile_size).contiguous()  # [C, N, 4]
     area = (rects[..., 1] - rects[..., 0]).long() * (rects[..., 3] - rects[..., 2]).long()
@@ -74,7 +74,7 @@ def bin_gaussians(
     if num_pairs >= 2**31 or C * N >= 2**31:
         raise ValueError(f"{num_pairs} tile-Gaussian pairs exceed the int32 kernel indices")
     # culled Gaussians sort last with an empty rect; ties keep the index order (stable), like gsplat
-    key = depths.detach().masked_fill(radii <= 0, math.inf)
+    key = depths.detach().masked_fill(radii.amax(dim=-1) <= 0, math.inf)
     order = torch.argsort(key, dim=1, stable=True).contiguous()  # [C, N] int64
     offsets = torch.empty(C * tiles_x * tiles_y + 1, dtype=torch.int32)
     gids = torch.empty(num_pairs, dtype=torch.int32)

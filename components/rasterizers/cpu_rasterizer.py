@@ -135,13 +135,14 @@ class CpuRasterizer(Rasterizer):
         if background is not None:
             rgb = rgb + trans * background.to(rgb).expand(len(rgb), D)[:, None, None, :]
         alpha = 1.0 - trans  # [C, H, W, 1]
+        radii = p.proj.radii.amax(dim=-1)  # [C, N]
         return RasterizeOutput(
             rgb=rgb,
             depth=depth_accum / alpha.clamp_min(1e-10),
             alpha=alpha,
             means2d=means2d,
-            radii=p.proj.radii,
-            visible=p.proj.radii > 0,
+            radii=radii,
+            visible=radii > 0,
             depth_accum=depth_accum,
             depths=p.proj.depths,
         )
@@ -166,10 +167,13 @@ class CpuRasterizer(Rasterizer):
     def _prepare(self, lib, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree):
         """Projection and colours in torch autograd (shared with the reference), then binning."""
         cfg = self.config
-        proj = project_gaussians(means, quats, scales, viewmats, Ks, width, height, *_planes(cfg))
-        C, N = proj.radii.shape
+        proj = project_gaussians(
+            means, quats, scales, viewmats, Ks, width, height, *_planes(cfg), opacities=opacities
+        )
+        C, N = proj.radii.shape[:2]
         if sh_degree is not None:
-            colors = _visible_sh_colors(sh_degree, colors, means, viewmats, proj.radii)  # [C, N, 3]
+            visible = proj.radii.amax(dim=-1)  # [C, N]
+            colors = _visible_sh_colors(sh_degree, colors, means, viewmats, visible)  # [C, N, 3]
         D = colors.shape[-1]
         payload = torch.cat([colors.expand(C, N, D), proj.depths[..., None]], dim=-1)  # [C, N, D + 1]
         bins = bin_gaussians(lib, proj.means2d, proj.depths, proj.radii, width, height, cfg.tile_size)

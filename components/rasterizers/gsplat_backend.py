@@ -1,10 +1,11 @@
 """``gsplat`` backend: gsplat's CUDA rasterization, used by ``auto`` when a GPU is present.
 
-gsplat is an optional dependency (``pip install -e '.[cuda]'``); it JIT-compiles its kernels on
-first use. Called in classic mode, non-packed, with expected depth ("RGB+ED") so its outputs
-mean what the ``torch`` reference's do. Status: written against gsplat 1.4's documented API;
-its parity test (``tests/rasterizer/test_gsplat_parity.py``, marker ``gpu``) has not yet run on
-a GPU machine.
+gsplat 1.5.x is an optional dependency (``pip install -e '.[cuda]'``); it JIT-compiles its
+kernels on first use. Called in classic mode, non-packed, with expected depth ("RGB+ED") so its
+outputs mean what the ``torch`` reference's do (docs/rasterizer.md). The call and the unpacking of
+its outputs are checked on CPU against a stand-in made of gsplat's PyTorch code
+(``tests/rasterizer/test_gsplat_glue.py``); the CUDA kernels' parity test
+(``tests/rasterizer/test_gsplat_parity.py``, marker ``gpu``) has not yet run on a GPU machine.
 """
 
 from __future__ import annotations
@@ -81,9 +82,7 @@ class GsplatRasterizer(Rasterizer):
         means2d = meta["means2d"]  # [C, N, 2]
         if means2d.requires_grad:
             means2d.retain_grad()  # densification reads the screen-space gradient
-        radii = meta["radii"]
-        if radii.dim() == 3:  # gsplat >= 1.5: per-axis radii [C, N, 2]
-            radii = radii.max(dim=-1).values
+        radii = meta["radii"].amax(dim=-1)  # [C, N] from the per-axis [C, N, 2]
         depth = render[..., d:]  # [C, H, W, 1] expected depth
         return RasterizeOutput(
             rgb=render[..., :d],

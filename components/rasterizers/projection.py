@@ -1,10 +1,11 @@
 """EWA projection of 3D Gaussians to screen space, in pure differentiable PyTorch.
 
-Follows gsplat's classic pinhole projection (``fully_fused_projection``): camera-space
-covariance ``W Sigma W^T``, Jacobian with ``x/z, y/z`` clamped to 1.3x the field of view (so
-off-screen Gaussians do not get huge footprints), ``+eps2d`` low-pass, 3-sigma radius from the
-largest eigenvalue. Culled Gaussians keep finite (meaningless) values so autograd never sees
-inf/NaN through them.
+Follows gsplat's classic pinhole projection (``fully_fused_projection``, gsplat >= 1.5):
+camera-space covariance ``W Sigma W^T``, Jacobian with ``x/z, y/z`` clamped to 1.3x the field of
+view (so off-screen Gaussians do not get huge footprints), ``+eps2d`` low-pass, and gsplat's
+opacity-aware per-axis radii: the box of the ellipse where ``opacity * exp(-sigma)`` can still
+reach 1/255, so every pair that composites lies inside the tiles a Gaussian is binned to. Culled
+Gaussians keep finite (meaningless) values so autograd never sees inf/NaN through them.
 """
 
 from __future__ import annotations
@@ -14,6 +15,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+ALPHA_MIN = 1.0 / 255.0
+"""Pairs with a smaller alpha are skipped; a Gaussian whose opacity is below it is culled."""
+MAX_EXTEND = 3.33
+"""gsplat's cap on the box half-extent in standard deviations (never reached for opacity <= 1)."""
+
 
 @dataclass
 class Projected:
@@ -22,7 +28,7 @@ class Projected:
     means2d: Tensor  # [C, N, 2] pixels
     conics: Tensor  # [C, N, 3] inverse 2D covariance (a, b, c) of [[a, b], [b, c]]
     depths: Tensor  # [C, N] camera z
-    radii: Tensor  # [C, N] int32, 0 = culled
+    radii: Tensor  # [C, N, 2] int32 box half-extents (x, y) in pixels, 0 = culled
     cov2d_diag: Tensor  # [C, N, 2] detached (var_x, var_y) of the blurred 2D covariance: tight box extents
 
 
@@ -61,8 +67,11 @@ def project_gaussians(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     eps2d: float = 0.3,
+    *,
+    opacities: Tensor,  # [N] activated; sizes the boxes and culls those below 1/255
 ) -> Projected:
-    """Project N Gaussians into C pinhole cameras (differentiable w.r.t. every tensor input)."""
+    """Project N Gaussians into C pinhole cameras (differentiable w.r.t. every tensor input but
+    ``opacities``, which only decides the boxes)."""
     R = viewmats[:, None, :3, :3]  # [C, 1, 3, 3]
     t = viewmats[:, None, :3, 3]  # [C, 1, 3]
     means_c = (R @ means[None, :, :, None]).squeeze(-1) + t  # [C, N, 3]
@@ -104,14 +113,18 @@ def project_gaussians(
     means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)  # [C, N, 2]
 
     with torch.no_grad():
-        half_tr = 0.5 * (a + c)
-        # gsplat floors the discriminant at 0.01, which slightly enlarges near-isotropic radii
-        lam = half_tr + torch.sqrt(torch.clamp_min(half_tr * half_tr - det, 0.01))
-        radius = torch.ceil(3.0 * torch.sqrt(lam)).clamp_max(2.0**30)  # int32-safe
+        # opacity-aware box: alpha >= 1/255 needs sigma <= log(255 o); along x that is
+        # |dx| <= sqrt(2 log(255 o) var_x) (gsplat computes log(o / (1/255)) the same way)
+        op = opacities.detach().to(a.dtype)[None].expand_as(a)  # [C, N]
+        reach = torch.log(op / ALPHA_MIN).clamp_min(0.0)
+        extend = torch.sqrt(2.0 * reach).clamp_max(MAX_EXTEND)
+        radius = torch.ceil(extend[..., None] * torch.sqrt(torch.stack([a, c], dim=-1).clamp_min(0.0)))
+        radius = radius.clamp_max(2.0**30)  # [C, N, 2], int32-safe
+        rx, ry = radius.unbind(-1)
         mx, my = means2d[..., 0], means2d[..., 1]
-        onscreen = (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
-        keep = in_depth & det_ok & fits & (radius > 0) & onscreen
-        radii = torch.where(keep, radius, torch.zeros_like(radius)).to(torch.int32)
+        onscreen = (mx + rx > 0) & (mx - rx < width) & (my + ry > 0) & (my - ry < height)
+        keep = in_depth & det_ok & fits & (op >= ALPHA_MIN) & (rx > 0) & (ry > 0) & onscreen
+        radii = torch.where(keep[..., None], radius, torch.zeros_like(radius)).to(torch.int32)
         diag = torch.stack([a, c], dim=-1).detach()
     return Projected(means2d=means2d, conics=conics, depths=z, radii=radii, cov2d_diag=diag)
 

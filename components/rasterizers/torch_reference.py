@@ -4,7 +4,7 @@ It reproduces gsplat's classic forward pass (docs/rasterizer.md) without custom 
 
 1. project (``projection.py``) and order each camera's visible Gaussians front to back;
 2. walk them front to back in chunks. For each chunk, *without grad*: list the candidate
-   (pixel, Gaussian) pairs -- pixels of the tiles the 3-sigma box overlaps (gsplat's tile
+   (pixel, Gaussian) pairs -- pixels of the tiles the radius box overlaps (gsplat's tile
    binning), cut to the box where ``opacity * exp(-sigma)`` can still reach 1/255 -- drop the
    pairs gsplat skips (``sigma < 0`` or ``alpha < 1/255``) or whose pixel already stopped, sort
    them per pixel and apply the exclusive ``T <= 1e-4`` stop rule with the transmittance carried
@@ -26,13 +26,11 @@ from torch import Tensor
 
 from components.gaussians.sh import sh_to_colors
 from components.rasterizers.base import RasterizeOutput, Rasterizer, RasterizerConfig, check_inputs
-from components.rasterizers.projection import camera_centers, project_gaussians
+from components.rasterizers.projection import ALPHA_MIN, camera_centers, project_gaussians
 from tridehaze_plugin.registry import register
 
 ALPHA_MAX = 0.999
 """Per-Gaussian alpha is clamped here so one splat never makes a pixel fully opaque."""
-ALPHA_MIN = 1.0 / 255.0
-"""Pairs with a smaller alpha are skipped (they do not change the transmittance)."""
 T_MIN = 1e-4
 """A pixel stops at the first Gaussian that would bring its transmittance to <= this (exclusive)."""
 
@@ -65,7 +63,17 @@ class TorchRasterizer(Rasterizer):
         cfg = self.config
         width, height = int(width), int(height)
         proj = project_gaussians(
-            means, quats, scales, viewmats, Ks, width, height, cfg.near_plane, cfg.far_plane, cfg.eps2d
+            means,
+            quats,
+            scales,
+            viewmats,
+            Ks,
+            width,
+            height,
+            cfg.near_plane,
+            cfg.far_plane,
+            cfg.eps2d,
+            opacities=opacities,
         )
         means2d = proj.means2d  # [C, N, 2]
         if means2d.requires_grad:
@@ -88,7 +96,7 @@ class TorchRasterizer(Rasterizer):
             self.chunk_elems,
         )
         depth = depth_accum / alpha.clamp_min(1e-10)  # [C, H, W, 1], 0 where nothing was hit
-        radii = proj.radii
+        radii = proj.radii.amax(dim=-1)  # [C, N]
         return RasterizeOutput(
             rgb=rgb,
             depth=depth,
@@ -112,7 +120,7 @@ def composite(
     means2d: Tensor,  # [C, N, 2]
     conics: Tensor,  # [C, N, 3]
     depths: Tensor,  # [C, N]
-    radii: Tensor,  # [C, N] int
+    radii: Tensor,  # [C, N, 2] int box half-extents (x, y)
     cov2d_diag: Tensor,  # [C, N, 2]
     opacities: Tensor,  # [N]
     colors: Tensor,  # [N, D] or [C, N, D]
@@ -123,7 +131,7 @@ def composite(
     chunk_elems: int = 1 << 20,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Front-to-back alpha compositing -> rgb [C, H, W, D], alpha [C, H, W, 1], depth_accum [C, H, W, 1]."""
-    C, N = radii.shape
+    C, N = radii.shape[:2]
     D = colors.shape[-1]
     hw = height * width
     # packed per-Gaussian attributes: one gather per chunk and side; unbind (not column slicing)
@@ -194,14 +202,15 @@ class _Frontier:
         height: int,
         tile_size: int,
     ) -> None:
-        C, N = radii.shape
+        C, N = radii.shape[:2]
         self.C, self.H, self.W = C, height, width
         device = radii.device
         dtype = self.dtype = means2d.dtype
         # visible Gaussians of each camera, front to back (ties keep the index order, like gsplat)
-        key = depths.detach().masked_fill(radii <= 0, math.inf)  # [C, N]
+        visible = radii.amax(dim=-1) > 0  # [C, N]
+        key = depths.detach().masked_fill(~visible, math.inf)  # [C, N]
         order = torch.argsort(key, dim=1, stable=True)  # [C, N]
-        vis = radii.gather(1, order) > 0
+        vis = visible.gather(1, order)
         self.gids = gids = (order + torch.arange(C, device=device)[:, None] * N)[vis]  # [G] camera-major
         self.cam = gids // N
         m = means2d.detach().reshape(-1, 2).index_select(0, gids)  # [G, 2]
@@ -210,21 +219,23 @@ class _Frontier:
         op = opacities.detach().to(dtype).index_select(0, gids % N)  # [G]
         mx, my = m[:, 0], m[:, 1]
 
-        # pixel box = tiles overlapped by the 3-sigma box (gsplat's binning) ∩ bounding box of the
+        # pixel box = tiles overlapped by the radius box (gsplat's binning) ∩ bounding box of the
         # ellipse where alpha can reach 1/255 (sigma <= log(255 o)): |dx| <= sqrt(2 log(255 o) var_x).
+        # The radius box is that same box rounded up, so the tiles only matter at rounding level.
         # The small margin absorbs rounding (a too-large box only costs time; the alpha test is exact).
         ts = float(tile_size)
         tiles_w, tiles_h = math.ceil(width / tile_size), math.ceil(height / tile_size)
-        r = radii.reshape(-1).index_select(0, gids).to(dtype) / ts
+        r = radii.reshape(-1, 2).index_select(0, gids).to(dtype) / ts  # [G, 2] in tiles
         log_reach = torch.log(op * 255.0)
         ext = torch.sqrt(2.0 * log_reach.clamp_min(0.0)[:, None] * var) * (1.0 + 1e-4) + 1e-3  # [G, 2]
-        x0 = torch.maximum(torch.floor(mx - 0.5 - ext[:, 0]), torch.floor(mx / ts - r).clamp(0, tiles_w) * ts)
+        rx, ry = r[:, 0], r[:, 1]
+        x0 = torch.maximum(torch.floor(mx - 0.5 - ext[:, 0]), torch.floor(mx / ts - rx).clamp(0, tiles_w) * ts)
         x1 = torch.minimum(
-            torch.floor(mx - 0.5 + ext[:, 0]) + 1, torch.ceil(mx / ts + r).clamp(0, tiles_w) * ts
+            torch.floor(mx - 0.5 + ext[:, 0]) + 1, torch.ceil(mx / ts + rx).clamp(0, tiles_w) * ts
         )
-        y0 = torch.maximum(torch.floor(my - 0.5 - ext[:, 1]), torch.floor(my / ts - r).clamp(0, tiles_h) * ts)
+        y0 = torch.maximum(torch.floor(my - 0.5 - ext[:, 1]), torch.floor(my / ts - ry).clamp(0, tiles_h) * ts)
         y1 = torch.minimum(
-            torch.floor(my - 0.5 + ext[:, 1]) + 1, torch.ceil(my / ts + r).clamp(0, tiles_h) * ts
+            torch.floor(my - 0.5 + ext[:, 1]) + 1, torch.ceil(my / ts + ry).clamp(0, tiles_h) * ts
         )
         x0, x1 = x0.clamp(0, width), x1.clamp(0, width)
         y0, y1 = y0.clamp(0, height), y1.clamp(0, height)

@@ -1,4 +1,7 @@
-"""gsplat (CUDA) vs the torch reference: runs only where CUDA and gsplat exist (marker ``gpu``)."""
+"""gsplat (CUDA) vs the torch reference: runs only where CUDA and gsplat exist (marker ``gpu``).
+
+The backend's call itself is checked on CPU by ``test_gsplat_glue.py``; this adds the kernels.
+"""
 
 from __future__ import annotations
 
@@ -40,6 +43,8 @@ def test_gsplat_matches_torch_reference_forward_and_backward():
     torch.testing.assert_close(a.rgb, b.rgb, atol=1e-4, rtol=0)
     torch.testing.assert_close(a.alpha, b.alpha, atol=1e-4, rtol=0)
     torch.testing.assert_close(a.depth, b.depth, atol=1e-3, rtol=1e-3)
-    assert (a.radii == b.radii).float().mean() > 0.99  # gsplat >= 1.5 computes tighter radii
+    # same box formula; __logf and ceil at integer boundaries may move a rare radius by a pixel
+    assert (a.radii == b.radii).float().mean() > 0.999
+    assert torch.equal(a.visible, b.visible)
     for x, y in zip(ga, gb, strict=True):
         torch.testing.assert_close(x, y, atol=1e-3 * float(y.abs().max()), rtol=0)

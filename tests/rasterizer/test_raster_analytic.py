@@ -67,11 +67,37 @@ def test_single_isotropic_gaussian_matches_closed_form() -> None:
         assert alpha[py, px].item() == pytest.approx(expect, abs=1e-12)
     # a single Gaussian over black: rgb = colour * alpha
     torch.testing.assert_close(out.rgb[0], alpha[..., None] * g[4][0], rtol=0, atol=1e-12)
-    # 3-sigma radius from the largest eigenvalue (gsplat floors the discriminant at 0.01)
-    a, b, c = cov[0, 0].item(), cov[0, 1].item(), cov[1, 1].item()
-    half = 0.5 * (a + c)
-    lam = half + math.sqrt(max(0.01, half * half - (a * c - b * b)))
-    assert out.radii[0, 0].item() == math.ceil(3 * math.sqrt(lam))
+    # opacity-aware box (gsplat >= 1.5): half-extents of the ellipse where alpha reaches 1/255,
+    # sqrt(2 log(255 o) var) per axis; the radius is the larger one
+    extend = math.sqrt(2 * math.log(255 * o))
+    rx, ry = math.ceil(extend * math.sqrt(cov[0, 0].item())), math.ceil(extend * math.sqrt(cov[1, 1].item()))
+    assert out.radii[0, 0].item() == max(rx, ry)
+
+
+@pytest.mark.parametrize("tile", [1, 4, 16])
+def test_every_pair_reaching_1_over_255_composites_whatever_the_tiles(tile: int) -> None:
+    """An opaque splat's alpha stays >= 1/255 out to sqrt(2 log 255) = 3.33 sigma: those tail pixels
+    are composited (gsplat >= 1.5's opacity-aware boxes), all of them and only them, at any tile size.
+    (A 3-sigma box, gsplat 1.4, stops at 9 px here and drops the pixels 9.5 px away.)"""
+    z, o, sigma = 2.0, 0.99, 2.95  # sigma in pixels, blur included: 3 sigma = 8.85, 3.33 sigma = 9.8
+    s = math.sqrt(sigma**2 - 0.3) * z
+    g = _gaussians([[0.0, 0.0, z]], [[s / FX, s / FY, 0.05]], [o], [[1.0] * 3])  # on the axis: J diagonal
+    out = _render(*g, config=RasterizerConfig(tile_size=tile))
+    px, py = torch.meshgrid(torch.arange(W, dtype=F64), torch.arange(H, dtype=F64), indexing="xy")
+    d2 = ((CX - (px + 0.5)) ** 2 + (CY - (py + 0.5)) ** 2) / sigma**2  # [H, W]
+    expect = o * torch.exp(-0.5 * d2)
+    expect = torch.where(expect >= 1 / 255, expect, torch.zeros_like(expect))
+    tail = (expect > 0) & (d2 > 9.0)  # beyond 3 sigma, still composited
+    assert tail.sum() >= 20
+    torch.testing.assert_close(out.alpha[0, ..., 0], expect, rtol=0, atol=1e-12)
+
+
+def test_gaussians_below_1_over_255_opacity_are_culled() -> None:
+    g = _gaussians([_on_pixel_centre(8, 8, 2.0), _on_pixel_centre(20, 8, 2.0)], [[0.1] * 3] * 2,
+                   [0.9 / 255, 1.1 / 255], [[1.0] * 3] * 2)  # fmt: skip
+    out = _render(*g)
+    assert out.visible.tolist() == [[False, True]] and out.radii[0, 0].item() == 0
+    assert out.alpha[0, 8, 8, 0].item() == 0.0 and out.alpha[0, 8, 20, 0].item() == pytest.approx(1.1 / 255)
 
 
 def test_alpha_is_clamped_at_0999() -> None:

@@ -1,6 +1,6 @@
 // CPU kernels of the `cpu` rasterizer backend: tile binning, forward and backward compositing.
 //
-// Semantics are those of docs/rasterizer.md (gsplat 1.4 "classic"), shared with the torch
+// Semantics are those of docs/rasterizer.md (gsplat 1.5 "classic"), shared with the torch
 // reference: pixel centres at +0.5, alpha = min(0.999, o exp(-sigma)), pairs with sigma < 0 or
 // alpha < 1/255 skipped, a pixel stops before the first Gaussian that would bring T to <= 1e-4.
 // Projection, SH and the background stay in PyTorch; this file only composites screen-space
@@ -145,7 +145,7 @@ struct TileBox {
 // Where one Gaussian can reach alpha >= 1/255 inside a tile: rows [r0, r1) and a lane window
 // [l0, l0 + NARROW) when its ellipse is narrow enough (then 8-lane vectors do half the work),
 // else every chunk of the row (narrow = false). False when the ellipse misses the tile's pixel
-// centres altogether (its 3-sigma box may overlap the tile while alpha stays below 1/255).
+// centres altogether (its box may overlap the tile while alpha stays below 1/255).
 struct Span {
     int r0, r1, l0;
     bool narrow;
