@@ -229,11 +229,15 @@ class _Frontier:
         log_reach = torch.log(op * 255.0)
         ext = torch.sqrt(2.0 * log_reach.clamp_min(0.0)[:, None] * var) * (1.0 + 1e-4) + 1e-3  # [G, 2]
         rx, ry = r[:, 0], r[:, 1]
-        x0 = torch.maximum(torch.floor(mx - 0.5 - ext[:, 0]), torch.floor(mx / ts - rx).clamp(0, tiles_w) * ts)
+        x0 = torch.maximum(
+            torch.floor(mx - 0.5 - ext[:, 0]), torch.floor(mx / ts - rx).clamp(0, tiles_w) * ts
+        )
         x1 = torch.minimum(
             torch.floor(mx - 0.5 + ext[:, 0]) + 1, torch.ceil(mx / ts + rx).clamp(0, tiles_w) * ts
         )
-        y0 = torch.maximum(torch.floor(my - 0.5 - ext[:, 1]), torch.floor(my / ts - ry).clamp(0, tiles_h) * ts)
+        y0 = torch.maximum(
+            torch.floor(my - 0.5 - ext[:, 1]), torch.floor(my / ts - ry).clamp(0, tiles_h) * ts
+        )
         y1 = torch.minimum(
             torch.floor(my - 0.5 + ext[:, 1]) + 1, torch.ceil(my / ts + ry).clamp(0, tiles_h) * ts
         )
