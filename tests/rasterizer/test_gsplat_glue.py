@@ -17,7 +17,9 @@ that the CUDA kernels match their PyTorch twins; ``test_gsplat_parity.py`` (``-m
 
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import gsplat
 import pytest
@@ -174,3 +176,18 @@ def test_gsplat_backend_background_forms_and_per_camera_colours(cpu_gsplat) -> N
         b, *_ = _run(TorchRasterizer(), args, False, width=40, height=30, background=background)
         torch.testing.assert_close(a.rgb, b.rgb, atol=2e-5, rtol=0)
         assert (a.depth[a.alpha == 0] == 0).all()  # no hit: depth 0
+
+
+def test_rasterizer_benchmark_runs_a_gsplat_row(cpu_gsplat, monkeypatch) -> None:
+    """benchmarks/rasterizers.py with gsplat among the backends (on a GPU its inputs are CUDA tensors;
+    here the stand-in renders CPU ones)."""
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "rasterizers.py"
+    spec = importlib.util.spec_from_file_location("bench_rasterizers", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.device_of("gsplat").type == "cuda" and bench.device_of("cpu").type == "cpu"
+    monkeypatch.setattr(bench, "device_of", lambda backend: torch.device("cpu"))
+    monkeypatch.setattr(GsplatRasterizer, "unavailable_reason", classmethod(lambda cls: None))
+    rows = bench.bench_case(["torch", "gsplat"], 200, 32, 24, repeats=1, scale_mult=1.0)
+    assert [r["backend"] for r in rows] == ["torch", "gsplat"]
+    assert all(r["forward_s"] > 0 and r["fwd_bwd_s"] > 0 and r["speedup_fwd_bwd"] > 0 for r in rows)

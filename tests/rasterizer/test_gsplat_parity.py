@@ -38,7 +38,7 @@ def test_gsplat_matches_torch_reference_forward_and_backward():
         inputs = [a.clone().requires_grad_(a.is_floating_point() and i < 5) for i, a in enumerate(args)]
         out = rast.rasterize(*inputs, **kw)
         (out.rgb.square().sum() + out.depth.sum() * 0.01 + out.alpha.sum()).backward()
-        outs.append((out, [x.grad for x in inputs[:5]]))
+        outs.append((out, [x.grad for x in inputs[:5]] + [out.means2d.grad]))
     (a, ga), (b, gb) = outs
     torch.testing.assert_close(a.rgb, b.rgb, atol=1e-4, rtol=0)
     torch.testing.assert_close(a.alpha, b.alpha, atol=1e-4, rtol=0)
@@ -46,5 +46,11 @@ def test_gsplat_matches_torch_reference_forward_and_backward():
     # same box formula; __logf and ceil at integer boundaries may move a rare radius by a pixel
     assert (a.radii == b.radii).float().mean() > 0.999
     assert torch.equal(a.visible, b.visible)
-    for x, y in zip(ga, gb, strict=True):
+    for x, y in zip(ga, gb, strict=True):  # means, quats, scales, opacities, SH, means2d (densification)
         torch.testing.assert_close(x, y, atol=1e-3 * float(y.abs().max()), rtol=0)
+
+
+def test_auto_picks_gsplat_on_cuda():
+    if not GsplatRasterizer.available():
+        pytest.skip(GsplatRasterizer.unavailable_reason())
+    assert isinstance(RasterizerConfig(backend="auto").setup(), GsplatRasterizer)
