@@ -169,7 +169,7 @@ def _declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.tdh_bin.argtypes = [i32] * 4 + [ptr] * 4
     lib.tdh_pack.argtypes = [i32] * 4 + [ptr] * 6  # leading int: threads
     lib.tdh_forward.argtypes = [i32] * 7 + [ptr] * 7
-    lib.tdh_backward.argtypes = [i32] * 7 + [ptr] * 9
+    lib.tdh_backward.argtypes = [i32] * 7 + [ptr] * 9 + [i32]  # trailing int: fixed schedule
     for fn in (lib.tdh_bin, lib.tdh_pack, lib.tdh_forward, lib.tdh_backward):
         fn.restype = None
     return lib

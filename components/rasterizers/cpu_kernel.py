@@ -18,6 +18,9 @@ from torch import Tensor
 
 GRAD_GEOM = 6
 """Per-Gaussian gradient slots before the payload: mean x, mean y, conic a, b, c, opacity."""
+FIXED_SCHEDULE = True
+"""Backward hands tiles to threads round-robin (thread t: tiles t, t + T, ...) instead of first come,
+first served, so each thread's gradient sums, and their total, are the same on every call."""
 
 
 def _ptr(t: Tensor) -> ctypes.c_void_p:
@@ -154,6 +157,7 @@ class CompositeFn(torch.autograd.Function):
         ctx.lib.tdh_backward(
             ctx.threads, C, N, height, width, bins.tile_size, nc, _ptr(packed), _ptr(bins.offsets), _ptr(bins.gids),
             _ptr(trans), _ptr(last), _ptr(v_acc), _ptr(v_trans), _ptr(bins.order), _ptr(grads),
+            int(FIXED_SCHEDULE),
         )  # fmt: skip
         return (
             grads[..., 0:2],

@@ -95,6 +95,29 @@ void parallel_for(int n, int nthreads, F&& f) {
 #endif
 }
 
+// Runs f(item, thread_id) with a fixed assignment: thread t takes items t, t + nthreads, ...
+// Each thread then sums the same items in the same order on every call (reproducible sums).
+template <class F>
+void parallel_for_fixed(int n, int nthreads, F&& f) {
+    nthreads = std::max(1, std::min(nthreads, n));
+    if (nthreads == 1) {
+        for (int i = 0; i < n; ++i) f(i, 0);
+        return;
+    }
+#ifdef TDH_OPENMP
+#pragma omp parallel for schedule(static, 1) num_threads(nthreads)
+    for (int i = 0; i < n; ++i) f(i, omp_get_thread_num());
+#else
+    auto work = [&](int tid) {
+        for (int i = tid; i < n; i += nthreads) f(i, tid);
+    };
+    std::vector<std::thread> pool;
+    for (int t = 1; t < nthreads; ++t) pool.emplace_back(work, t);
+    work(0);
+    for (auto& th : pool) th.join();
+#endif
+}
+
 #ifdef TDH_LIBM_EXP
 inline float vexp(float x) { return std::exp(x); }
 #else
@@ -501,7 +524,7 @@ void tdh_forward(int nthreads, int C, int N, int H, int W, int ts, int nc, const
 
 void tdh_backward(int nthreads, int C, int N, int H, int W, int ts, int nc, const float* packed, const int32_t* offsets,
                   const int32_t* gids, const float* fin_T, const int32_t* fin_last, const float* v_acc,
-                  const float* v_T, const int64_t* order, float* grads) {
+                  const float* v_T, const int64_t* order, float* grads, int fixed) {
     const Geometry G{C, N, H, W, ts, (W + ts - 1) / ts, (H + ts - 1) / ts, nc};
     const int ntiles = C * G.tiles_per_cam();
     nthreads = std::max(1, std::min(nthreads, ntiles));
@@ -513,9 +536,13 @@ void tdh_backward(int nthreads, int C, int N, int H, int W, int ts, int nc, cons
     for (int t = 0; t < nthreads; ++t) part.emplace_back(static_cast<size_t>(total) * gstride);
     dispatch_nc(nc, [&](auto k) {
         constexpr int K = decltype(k)::value;
-        parallel_for(ntiles, nthreads, [&](int tile, int tid) {
+        auto one = [&](int tile, int tid) {
             backward_tile<K>(G, tile, packed, offsets, gids, fin_T, fin_last, v_acc, v_T, part[tid].data());
-        });
+        };
+        if (fixed)
+            parallel_for_fixed(ntiles, nthreads, one);
+        else
+            parallel_for(ntiles, nthreads, one);
     });
     const int64_t block = 4096;
     parallel_for(static_cast<int>((total + block - 1) / block), nthreads, [&](int b, int) {
