@@ -72,44 +72,32 @@ struct LineBuffer {
     float* data() const { return mem.get(); }
 };
 
-// Runs f(item, thread_id) for item in [0, n), items handed out one at a time (tiles vary a lot).
+// Runs f(item, thread_id) for item in [0, n). By default items are handed out one at a time,
+// first come first served (tiles vary a lot). With `fixed`, thread t takes items t, t + nthreads,
+// ...: each thread then sums the same items in the same order on every call (reproducible sums).
 template <class F>
-void parallel_for(int n, int nthreads, F&& f) {
+void parallel_for(int n, int nthreads, F&& f, bool fixed = false) {
     nthreads = std::max(1, std::min(nthreads, n));
     if (nthreads == 1) {
         for (int i = 0; i < n; ++i) f(i, 0);
         return;
     }
 #ifdef TDH_OPENMP
+    if (fixed) {
+#pragma omp parallel for schedule(static, 1) num_threads(nthreads)
+        for (int i = 0; i < n; ++i) f(i, omp_get_thread_num());
+    } else {
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nthreads)
-    for (int i = 0; i < n; ++i) f(i, omp_get_thread_num());
+        for (int i = 0; i < n; ++i) f(i, omp_get_thread_num());
+    }
 #else
     std::atomic<int> next{0};
     auto work = [&](int tid) {
-        for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) f(i, tid);
-    };
-    std::vector<std::thread> pool;
-    for (int t = 1; t < nthreads; ++t) pool.emplace_back(work, t);
-    work(0);
-    for (auto& th : pool) th.join();
-#endif
-}
-
-// Runs f(item, thread_id) with a fixed assignment: thread t takes items t, t + nthreads, ...
-// Each thread then sums the same items in the same order on every call (reproducible sums).
-template <class F>
-void parallel_for_fixed(int n, int nthreads, F&& f) {
-    nthreads = std::max(1, std::min(nthreads, n));
-    if (nthreads == 1) {
-        for (int i = 0; i < n; ++i) f(i, 0);
-        return;
-    }
-#ifdef TDH_OPENMP
-#pragma omp parallel for schedule(static, 1) num_threads(nthreads)
-    for (int i = 0; i < n; ++i) f(i, omp_get_thread_num());
-#else
-    auto work = [&](int tid) {
-        for (int i = tid; i < n; i += nthreads) f(i, tid);
+        if (fixed) {
+            for (int i = tid; i < n; i += nthreads) f(i, tid);
+        } else {
+            for (int i = next.fetch_add(1); i < n; i = next.fetch_add(1)) f(i, tid);
+        }
     };
     std::vector<std::thread> pool;
     for (int t = 1; t < nthreads; ++t) pool.emplace_back(work, t);
@@ -536,13 +524,12 @@ void tdh_backward(int nthreads, int C, int N, int H, int W, int ts, int nc, cons
     for (int t = 0; t < nthreads; ++t) part.emplace_back(static_cast<size_t>(total) * gstride);
     dispatch_nc(nc, [&](auto k) {
         constexpr int K = decltype(k)::value;
-        auto one = [&](int tile, int tid) {
-            backward_tile<K>(G, tile, packed, offsets, gids, fin_T, fin_last, v_acc, v_T, part[tid].data());
-        };
-        if (fixed)
-            parallel_for_fixed(ntiles, nthreads, one);
-        else
-            parallel_for(ntiles, nthreads, one);
+        parallel_for(
+            ntiles, nthreads,
+            [&](int tile, int tid) {
+                backward_tile<K>(G, tile, packed, offsets, gids, fin_T, fin_last, v_acc, v_T, part[tid].data());
+            },
+            fixed != 0);
     });
     const int64_t block = 4096;
     parallel_for(static_cast<int>((total + block - 1) / block), nthreads, [&](int b, int) {
