@@ -65,7 +65,7 @@ def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path):
     a, b = full.pipeline.state_dict(), again.pipeline.state_dict()
     assert a.keys() == b.keys()
     for k in a:
-        torch.testing.assert_close(a[k], b[k], rtol=0, atol=1e-6, msg=k)
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
     assert int(again.pipeline.stage) == 2
 
 
