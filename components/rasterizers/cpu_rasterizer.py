@@ -172,8 +172,8 @@ class CpuRasterizer(Rasterizer):
         )
         C, N = proj.radii.shape[:2]
         if sh_degree is not None:
-            visible = proj.radii.amax(dim=-1)  # [C, N]
-            colors = _visible_sh_colors(sh_degree, colors, means, viewmats, visible)  # [C, N, 3]
+            radii = proj.radii.amax(dim=-1)  # [C, N]
+            colors = _visible_sh_colors(sh_degree, colors, means, viewmats, radii)  # [C, N, 3]
         D = colors.shape[-1]
         payload = torch.cat([colors.expand(C, N, D), proj.depths[..., None]], dim=-1)  # [C, N, D + 1]
         bins = bin_gaussians(lib, proj.means2d, proj.depths, proj.radii, width, height, cfg.tile_size)
