@@ -245,7 +245,7 @@ class _Frontier:
         y0, y1 = y0.clamp(0, height), y1.clamp(0, height)
         self.bw = (x1 - x0).clamp_min(0).long()
         bh = (y1 - y0).clamp_min(0).long()
-        self.counts = self.bw * bh * (log_reach > -1e-3)  # [G]; an opacity below 1/255 never contributes
+        self.counts = self.bw * bh  # [G]; opacities below 1/255 are already culled by the projection
         self.box = torch.stack([x0, x1, y0, y1], dim=-1).long()  # [G, 4]
         self.base = self.cam * (height * width) + self.box[:, 2] * width + self.box[:, 0]  # [G] box corner
         self.attr = torch.stack([mx, my, con[:, 0], con[:, 1], con[:, 2], op, x0, y0], dim=-1)  # [G, 8]
