@@ -38,7 +38,7 @@ from components.synth.writer import frame_entry, staged_output, write_json, writ
 from tridehaze_plugin.errors import ConfigError
 
 LayoutName = Literal["street", "courtyard", "room", "field"]
-HazeName = Literal["none", "homogeneous", "height", "patchy", "dense", "uniform"]
+HazeName = Literal["none", "homogeneous", "height", "patchy", "dense", "uniform", "sunlit"]
 
 
 @dataclass
@@ -51,7 +51,8 @@ class SceneConfig:
     """Scene layout: a street (forward walk), a courtyard, a room (indoor), an open field."""
     haze: HazeName = "patchy"
     """Medium preset: none, homogeneous (constant extinction, light dimmer near the ground), height
-    (ground fog), patchy (heterogeneous blobs), dense, uniform (constant extinction and light)."""
+    (ground fog), patchy (heterogeneous blobs), dense, uniform (constant extinction and light),
+    sunlit (noise-modulated ground fog lit by a low sun with strong forward scattering)."""
     seed: int = 0
     """Random seed for the layout and the medium (same seed, byte-identical images and maps)."""
     num_views: int = 32

@@ -15,9 +15,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-PRESETS: tuple[str, ...] = ("none", "homogeneous", "height", "patchy", "dense", "uniform")
+PRESETS: tuple[str, ...] = ("none", "homogeneous", "height", "patchy", "dense", "uniform", "sunlit")
 """``homogeneous`` has constant extinction but light that dims near the ground; ``uniform`` is
-homogeneous in both (the one medium a ``constant`` model represents exactly)."""
+homogeneous in both (the one medium a ``constant`` model represents exactly); ``sunlit`` is ground
+fog modulated by a noise field and lit by a low sun through a strongly forward-scattering
+(Henyey-Greenstein) phase function: a second haze model that shares neither the extinction nor the
+light model of the others."""
 BLOB_CUTOFF = 1e-9
 """A blob is skipped on rays where it stays below this (relative to beta0) along the whole segment."""
 
@@ -101,7 +104,47 @@ def _gauss(t: Tensor, tc: Tensor, log_peak: Tensor, k: float) -> Tensor:
     return e.exp_()
 
 
-Field = ConstantField | HeightField | BlobField
+@dataclass(frozen=True)
+class NoisyHeightField:
+    """Ground fog broken up by a noise field:
+    ``beta_ground * exp(-(z - z_ground) / scale_height) * (1 + strength * n(x))``.
+
+    ``n(x)`` in [-1, 1] is the mean of ``cos(w_i . x + phi_i)`` over random wave vectors of two
+    octaves (a band-limited noise), so the field is smooth, heterogeneous in every direction and
+    positive for ``strength < 1``."""
+
+    beta_ground: float
+    scale_height: float
+    strength: float
+    waves: tuple[tuple[float, float, float], ...]
+    """Wave vectors w_i (rad / m)."""
+    phases: tuple[float, ...]
+    z_ground: float = 0.0
+
+    def __call__(self, x: Tensor) -> Tensor:
+        w = torch.tensor(self.waves, dtype=x.dtype)  # [M, 3]
+        phase = torch.tensor(self.phases, dtype=x.dtype)  # [M]
+        noise = torch.cos(x @ w.T + phase).mean(-1)  # [...]
+        z = (x[..., 2] - self.z_ground).clamp_min(0.0)
+        return self.beta_ground * torch.exp(z * (-1.0 / self.scale_height)) * (1.0 + self.strength * noise)
+
+    def along(self, o: Tensor, d: Tensor, t: Tensor) -> Tensor:
+        return self(o[:, None, :] + t[..., None] * d[:, None, :])
+
+
+def _noise_waves(rng: np.random.Generator, wavelength: float, count: int) -> tuple[tuple, tuple]:
+    """``count`` random wave vectors, half at ``wavelength`` and half at a third of it, and phases."""
+    waves, phases = [], []
+    for i in range(count):
+        k = 2 * math.pi / (wavelength if i % 2 == 0 else wavelength / 3.0)
+        v = rng.normal(size=3)
+        v[2] *= 2.0  # layered: the fog varies faster in height than across
+        waves.append(tuple(float(c) for c in k * v / np.linalg.norm(v)))
+        phases.append(float(rng.uniform(0, 2 * math.pi)))
+    return tuple(waves), tuple(phases)
+
+
+Field = ConstantField | HeightField | BlobField | NoisyHeightField
 
 
 # --------------------------------------------------------------------------------------
@@ -146,12 +189,54 @@ class MediumLight:
 
 
 @dataclass(frozen=True)
+class ForwardScatterLight:
+    """Single scattering of a sun through a Henyey-Greenstein phase function plus a sky ambient:
+    ``L(v) = ambient + sun * p_HG(v . sun; g) / p_HG(1; g)``, clipped to [0, 1].
+
+    With ``g = 0.8`` looking into the sun is ~700x brighter than looking away from it, and the glow
+    falls off over tens of degrees: a medium light that a single airlight cannot describe."""
+
+    ambient: tuple[float, float, float]
+    sun_color: tuple[float, float, float]
+    sun: tuple[float, float, float]
+    g: float = 0.8
+
+    def color(self, v: Tensor) -> Tensor:  # [R, 3] unit directions -> [R, 3]
+        cos = (v * torch.tensor(self.sun, dtype=v.dtype)).sum(-1)
+        g = self.g
+        ratio = ((1.0 - g) ** 2 / (1.0 + g * g - 2.0 * g * cos)) ** 1.5  # p_HG(cos) / p_HG(1) in (0, 1]
+        amb, sun = torch.tensor(self.ambient, dtype=v.dtype), torch.tensor(self.sun_color, dtype=v.dtype)
+        return (amb + sun * ratio[:, None]).clamp(0.0, 1.0)
+
+    def spatial_z(self, z: Tensor) -> Tensor:
+        return torch.ones_like(z)
+
+    def spatial(self, x: Tensor) -> Tensor:  # [..., 3] -> [...]
+        return torch.ones_like(x[..., 0])
+
+    def __call__(self, x: Tensor, v: Tensor) -> Tensor:  # x [R, K, 3], v [R, 3] -> [R, K, 3]
+        return self.color(v)[:, None, :] * self.spatial(x)[..., None]
+
+    @property
+    def max_value(self) -> float:
+        return float(min(1.0, max(a + s for a, s in zip(self.ambient, self.sun_color, strict=True))))
+
+
+Light = MediumLight | ForwardScatterLight
+
+SUNLIT_AMBIENT = (0.45, 0.5, 0.58)
+"""Sky-lit fog away from the sun: darker and bluer than the overcast presets' airlight."""
+SUNLIT_SUN = (0.55, 0.45, 0.3)
+"""Forward-scattered sunlight added looking into the sun (warm)."""
+
+
+@dataclass(frozen=True)
 class Medium:
     """A haze preset: extinction field + medium light, with the numbers that made it."""
 
     preset: str
     extinction: Field
-    light: MediumLight
+    light: Light
     params: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -222,7 +307,11 @@ def make_medium(preset: str, ctx: MediumContext, seed: int = 0, beta_scale: floa
     elif preset == "patchy":
         c, r, a = _blobs(ctx, rng, 12, (0.12, 0.3), cover=1.0)
         fld = BlobField(b_ref, base=0.25, centers=c, radii=r, amplitudes=a)
-    else:  # dense
+    elif preset == "dense":
         c, r, a = _blobs(ctx, rng, 6, (0.15, 0.35), cover=0.6)
         fld = BlobField(2.5 * b_ref, base=1.0, centers=c, radii=r, amplitudes=a)
+    else:  # sunlit
+        waves, phases = _noise_waves(rng, 0.6 * ctx.ref_distance, 6)
+        fld = NoisyHeightField(2.0 * b_ref, 1.5 * ctx.fog_height, 0.7, waves, phases, ctx.bounds_lo[2])
+        light = ForwardScatterLight(SUNLIT_AMBIENT, SUNLIT_SUN, ctx.sun)
     return Medium(preset, fld, light, {"beta_ref": b_ref, "ref_distance": ctx.ref_distance})
