@@ -25,6 +25,16 @@ class StepResult:
     """Scalar diagnostics for the progress bar and logs (already detached floats)."""
 
 
+@dataclass
+class Decision:
+    """A choice a pipeline made on its own: one line for the console, and its numbers for
+    ``logs/decisions.jsonl`` (e.g. the haze probe's class, backend and confidence)."""
+
+    message: str
+    data: dict = field(default_factory=dict)
+    """JSON-serialisable fields written next to the message."""
+
+
 class Pipeline(nn.Module, ABC):
     """A trainable method: data access, model(s), losses and per-step hooks."""
 
@@ -63,7 +73,7 @@ class Pipeline(nn.Module, ABC):
         """One line on how the pipeline was set up (e.g. data-driven initial values), or ''."""
         return ""
 
-    def pop_decisions(self) -> list[str]:
+    def pop_decisions(self) -> list[str | Decision]:
         """Choices the pipeline made on its own since the last call (a haze probe's verdict,
         densification that stopped growing), each one line; the trainer prints and logs them."""
         return []

@@ -29,7 +29,7 @@ from components.medium.compositing import (
     homogeneous_along_rays,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
-from pipelines.base import Pipeline, StepResult
+from pipelines.base import Decision, Pipeline, StepResult
 from pipelines.datamanager import DataManager
 from pipelines.haze_priors import (
     ViewPrior,
@@ -180,7 +180,7 @@ class GaussianPipeline(Pipeline):
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         self.init_info: dict[str, float | str] = {}
-        self._decisions: list[str] = []
+        self._decisions: list[str | Decision] = []
         train = datamanager.train_indices
         dcp_train: dict[int, DCPResult] = {}  # the probe's dark channels, reused by the priors below
         if config.medium.backend == "auto":
@@ -241,7 +241,7 @@ class GaussianPipeline(Pipeline):
         names the medium it trained (reloading never probes again)."""
         probe = probe_haze(datamanager, datamanager.train_indices, datamanager.scene.points, seed, dcp)
         self.config.medium = replace(self.config.medium, backend=probe.backend)
-        self._decisions.append(probe.message())
+        self._decisions.append(Decision(probe.message(), {"haze_probe": probe.to_dict()}))
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:
@@ -399,7 +399,7 @@ class GaussianPipeline(Pipeline):
             out["growth_stopped_at"] = self.densifier.growth_stopped_at
         return out
 
-    def pop_decisions(self) -> list[str]:
+    def pop_decisions(self) -> list[str | Decision]:
         out = self._decisions + self.densifier.decisions
         self._decisions, self.densifier.decisions = [], []
         return out

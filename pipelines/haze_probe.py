@@ -139,7 +139,9 @@ class HazeProbe:
         )
 
     def to_dict(self) -> dict:
-        return {**asdict(self), "backend": self.backend}
+        """JSON-ready (an unmeasured number is None, not NaN)."""
+        out = {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in asdict(self).items()}
+        return {**out, "backend": self.backend}
 
 
 @dataclass
@@ -258,7 +260,9 @@ def _impossible(out: HazeProbe) -> bool:
     return out.optical_depth < -IMPOSSIBLE_OPTICAL_DEPTH and out.optical_depth_high < 0.0
 
 
-def _bootstrap(obs: _Observations, pairs: _Pairs, median_distance: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _bootstrap(
+    obs: _Observations, pairs: _Pairs, median_distance: float, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Optical depth [B] and haze floor [B] over ``BOOTSTRAP`` resamples of the views (a pair counts
     as often as both its views were drawn)."""
     rng = np.random.default_rng(seed)
@@ -316,7 +320,9 @@ def _probe(
         distance_spread=spread, variation_f=f, variation_effect=effect, pairs=len(pairs.a), views=len(views),
     )  # fmt: skip
     # the bootstrap's verdicts on "clear" (each resample judged by its own estimates)
-    clear_votes = (taus < CLEAR_OPTICAL_DEPTH) & (taus > -IMPOSSIBLE_OPTICAL_DEPTH) & (floors < CLEAR_HAZE_FLOOR)
+    clear_votes = (
+        (taus < CLEAR_OPTICAL_DEPTH) & (taus > -IMPOSSIBLE_OPTICAL_DEPTH) & (floors < CLEAR_HAZE_FLOOR)
+    )
     clear_share = float(clear_votes.mean()) if spread >= MIN_DISTANCE_SPREAD else 0.0
     _classify(out, clear_share)
     return out

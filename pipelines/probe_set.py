@@ -77,13 +77,27 @@ def _synth_specs(root: Path) -> list[tuple[ProbeScene, SceneConfig]]:
         for preset in ("none", "uniform", "homogeneous", "height", "patchy", "dense"):
             name = f"synth-{layout}-{preset}"
             cfg = SceneConfig(output_dir=root / name, layout=layout, haze=preset, seed=1, **dims)
-            specs.append((ProbeScene(name, "synth", SYNTH_TRUTH.get(preset, "varying"), "calibration", cfg.output_dir), cfg))
+            specs.append(
+                (
+                    ProbeScene(
+                        name, "synth", SYNTH_TRUTH.get(preset, "varying"), "calibration", cfg.output_dir
+                    ),
+                    cfg,
+                )
+            )
         held = {"num_views": 16, "width": 80, "height": 60}
         for preset in ("sunlit", "none", "homogeneous", "patchy"):
             name = f"sunlit-{layout}-{preset}"
             size = dims if preset == "sunlit" else held
             cfg = SceneConfig(output_dir=root / name, layout=layout, haze=preset, seed=2, **size)
-            specs.append((ProbeScene(name, "sunlit", SYNTH_TRUTH.get(preset, "varying"), "held-out", cfg.output_dir), cfg))
+            specs.append(
+                (
+                    ProbeScene(
+                        name, "sunlit", SYNTH_TRUTH.get(preset, "varying"), "held-out", cfg.output_dir
+                    ),
+                    cfg,
+                )
+            )
     return specs  # fmt: skip
 
 
@@ -96,7 +110,9 @@ def scene_set(root: Path, real_root: Path | None) -> list[ProbeScene]:
                 continue
             for name, t, h, _ in REAL_HAZE:
                 truth = "none" if t is None else ("varying" if h > 0 else "homogeneous")
-                scenes.append(ProbeScene(f"real-{real}-{name}", "real", truth, split, root / f"real-{real}-{name}"))
+                scenes.append(
+                    ProbeScene(f"real-{real}-{name}", "real", truth, split, root / f"real-{real}-{name}")
+                )
     return scenes + [ProbeScene(s.name + "+sparse", s.family, s.truth, s.split, s.path, True) for s in scenes]
 
 
@@ -160,7 +176,9 @@ def restoration_variants() -> dict[str, Variant]:
     return {
         "tri-dehaze": Variant("tri-dehaze", "tri-dehaze", max_steps=RESTORE_STEPS["tri-dehaze"]),
         "fast": Variant("fast", fast, max_steps=RESTORE_STEPS[fast]),
-        "fast-none": Variant("fast-none", fast, ("--pipeline.medium.backend", "none"), max_steps=RESTORE_STEPS[fast]),
+        "fast-none": Variant(
+            "fast-none", fast, ("--pipeline.medium.backend", "none"), max_steps=RESTORE_STEPS[fast]
+        ),
         "fast-triplane": Variant(
             "fast-triplane", fast, ("--pipeline.medium.backend", "triplane"), max_steps=RESTORE_STEPS[fast]
         ),

@@ -309,9 +309,10 @@ class Trainer:
         path = self.run_dir / "logs" / "decisions.jsonl"
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("a", encoding="utf-8") as f:
-            for message in decisions:
-                self.console.print(f"[cyan]decision[/]: {message}")
-                f.write(json.dumps({"step": step, "message": message}) + "\n")
+            for d in decisions:
+                record = {"message": d} if isinstance(d, str) else {"message": d.message, **d.data}
+                self.console.print(f"[cyan]decision[/]: {record['message']}")
+                f.write(json.dumps({"step": step, **record}) + "\n")
 
     def _finite(self, loss: torch.Tensor) -> bool:
         if not bool(torch.isfinite(loss.detach())):

@@ -92,8 +92,8 @@ class MediumConfig(ComponentConfig):
     backend: Annotated[str, RegistryChoice("medium", allow=("auto",))] = "none"
     """Medium representation: ``triplane``, ``voxel``, ``mlp``, ``fourier``, ``constant``,
     ``gaussian-bound``, ``none``, or ``auto``: before training a haze probe of the training views
-    classifies the haze (none / homogeneous / varying), picks the backend measured best for that
-    class (none, else triplane) and logs why (docs/tradeoff.md)."""
+    classifies the haze (none / homogeneous / varying / unsure), picks ``none`` only for a capture
+    it can show to be clear (else triplane) and logs why, with a confidence (docs/tradeoff.md)."""
     resolution: int = 64
     """Tri-plane side (three planes of resolution^2 cells); other grids match its feature budget."""
     channels: int = 8

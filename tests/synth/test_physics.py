@@ -133,3 +133,41 @@ def test_height_fog_transmittance_matches_integral():
     tau = 0.2 * 3.0 / dz * (math.exp(-1.0 / 3.0) - math.exp(-(1.0 + 50.0 * dz) / 3.0))
     T = march(Medium("h", fld, LIGHT), o, d, dist, samples=1024, dtype=torch.float64).transmittance
     assert abs(float(T[0]) - math.exp(-tau)) < 1e-6
+
+
+def test_sunlit_preset_light_is_forward_scattering_and_bounded():
+    """Henyey-Greenstein g = 0.8: into the sun is ambient + sun colour, 90 degrees off it keeps under
+    1 % of the sun term, and the ratio follows the closed form."""
+    from components.synth.medium import ForwardScatterLight
+
+    light = ForwardScatterLight((0.4, 0.5, 0.6), (0.5, 0.4, 0.3), SUN, g=0.8)
+    sun = torch.tensor([SUN])
+    side = torch.tensor([[1.0, 0.0, 0.0]])  # orthogonal to SUN
+    assert torch.allclose(light.color(sun), torch.tensor([[0.9, 0.9, 0.9]]), atol=1e-6)
+    side_sun = light.color(side) - torch.tensor(light.ambient)
+    expected = ((1 - 0.8) ** 2 / (1 + 0.64)) ** 1.5  # p_HG(0) / p_HG(1)
+    assert torch.allclose(side_sun, torch.tensor([light.sun_color]) * expected, atol=1e-6)
+    assert expected < 0.01
+    v = torch.nn.functional.normalize(torch.randn(400, 3), dim=-1)
+    c = light.color(v)
+    assert float(c.min()) >= 0 and float(c.max()) <= light.max_value + 1e-6
+
+
+def test_sunlit_preset_fog_falls_with_height_and_varies_along_rays():
+    from components.synth.medium import NoisyHeightField
+
+    lay = make_layout("courtyard", seed=3)
+    med = make_medium("sunlit", lay.medium_context(), seed=3)
+    fld = med.extinction
+    assert isinstance(fld, NoisyHeightField) and 0 < fld.strength < 1
+    xy = torch.rand(2000, 2) * 20 - 10
+    low = fld(torch.cat([xy, torch.full((2000, 1), 0.2)], -1))
+    high = fld(torch.cat([xy, torch.full((2000, 1), 3 * fld.scale_height)], -1))
+    assert bool((low > 0).all()) and float(low.mean()) > 5 * float(high.mean())
+    assert float(low.std() / low.mean()) > 0.1  # the noise field makes it heterogeneous at one height
+    o, d, t_end = rays(64, seed=2)
+    t = t_end[:, None] * torch.linspace(0.05, 1.0, 8)[None]  # [R, K] sample distances
+    along = fld.along(o, d, t)  # [R, K]
+    assert along.shape == (64, 8)
+    direct = fld(o[:, None, :] + t[..., None] * d[:, None, :])
+    assert torch.allclose(along, direct)

@@ -2,6 +2,13 @@
 
     td-bench tradeoff --scenes S1 S2 S3 --output-dir tradeoff [--knobs steps samples=4,8 ...] [--combos fast]
 
+    td-bench probe --set-dir probe-set --output-dir probe [--restoration]
+
+``probe`` builds the haze probe's scene set (pipelines/probe_set.py), runs the probe on every scene
+and prints the confusion tables (whole set, held-out part) and, with ``--restoration``, trains the
+fast preset and tri-dehaze on the hazy scenes and prices each wrong verdict; writes
+``OUT/probe.{md,json,csv,png}``.
+
 ``tradeoff`` trains tri-dehaze with every time-costing knob varied one at a time around the default
 (plus the preset candidates), evaluates each run (td-eval) and reports per configuration the wall
 time, peak memory, Gaussian count and restoration PSNR / SSIM / LPIPS (means over the scenes),
@@ -20,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import torch
 import tyro
 
 from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
@@ -205,11 +213,122 @@ def tradeoff(args: TradeoffArgs) -> None:
         raise SystemExit(1)
 
 
+@dataclass
+class ProbeArgs:
+    """The haze probe on a scene set from several generators, with a held-back part."""
+
+    set_dir: Path = Path("probe-set")
+    """Where the scene set is (or is generated: seconds per generated scene, a few minutes for the
+    real sets' depth runs)."""
+    real_data: Path | None = Path("../shared/data/real")
+    """Folder with the real photo sets (statue, beer); None leaves them out."""
+    output_dir: Path = Path("probe")
+    """Folder for probe.{md,json,csv,png} and, with --restoration, runs/ and results/."""
+    restoration: bool = False
+    """Also train (resumably) the fast preset and tri-dehaze on every hazy scene, and the fast preset
+    with the right medium where the probe was wrong (hours on 2 cores)."""
+    jobs: int = 2
+    """Training runs in parallel (with --restoration)."""
+    threads: int = 1
+    """Torch threads per run."""
+
+
+def probe(args: ProbeArgs) -> None:
+    from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
+    from pipelines.probe_bench import confusion, load_results, mistake_costs, probe_scene, restoration_table
+    from pipelines.probe_set import build, restoration_variants, scene_set
+
+    if args.jobs < 1 or args.threads < 1:
+        raise ConfigError("--jobs and --threads must be >= 1")
+    real = args.real_data if args.real_data is not None and args.real_data.is_dir() else None
+    build(args.set_dir, real)
+    scenes = [s for s in scene_set(args.set_dir, real) if (s.path / "transforms.json").exists()]
+    torch.set_num_threads(args.threads)
+    rows = [probe_scene(s) for s in scenes]
+    held = [r for r in rows if r["split"] == "held-out"]
+    md = ["# Haze probe on its scene set", "", f"## Held-out part ({len(held)} scenes)", "", confusion(held), "",
+          f"## Whole set ({len(rows)} scenes)", "", confusion(rows), ""]  # fmt: skip
+    variants = restoration_variants()
+    if args.restoration:
+        opts = RunnerOptions(output_dir=args.output_dir, max_steps=3000, threads=args.threads, jobs=args.jobs,
+                             bins="none", lpips="off")  # fmt: skip
+        jobs = []
+        for s, r in zip(scenes, rows, strict=True):
+            if s.sparse:
+                continue  # a degraded seed cloud is a probe input; training uses the scene's own
+            wanted = ["fast", "tri-dehaze"] if s.hazy else ["fast"]
+            if not r["backend_right"]:
+                wanted.append("fast-none" if s.truth == "none" else "fast-triplane")
+            jobs += [Job(s.path, variants[v]) for v in wanted]
+        AblationRunner(opts).run(jobs, lambda job, res, skipped: print(f"{job.scene.name} / {job.variant.name}: "
+                                 f"{(res.get('restoration') or {}).get('psnr')} ({res['status']})", flush=True))  # fmt: skip
+    results = load_results(args.output_dir / "results", scenes, list(variants))
+    rest_md, rest = restoration_table(rows, results)
+    cost_md, costs = mistake_costs(rows, results)
+    md += ["## Fast preset vs tri-dehaze on the hazy scenes (restoration PSNR)", "", rest_md, "",
+           "## Cost of each wrong verdict (fast preset)", "", cost_md, ""]  # fmt: skip
+    out = args.output_dir
+    write_text_atomic(out / "probe.md", "\n".join(md))
+    write_text_atomic(
+        out / "probe.json", json.dumps({"probe": rows, "restoration": rest, "mistakes": costs}, indent=1)
+    )
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    w.writeheader()
+    w.writerows(rows)
+    write_text_atomic(out / "probe.csv", buf.getvalue())
+    plot_probe(rows, out / "probe.png")
+    print("\n".join(md))
+
+
+def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
+    """Optical depth interval against the haze floor, one marker per scene, coloured by truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipelines.haze_probe import CLEAR_HAZE_FLOOR, CLEAR_OPTICAL_DEPTH
+
+    fig, ax = plt.subplots(figsize=(6.6, 4.6))
+    colours = {"none": "tab:gray", "homogeneous": "tab:blue", "varying": "tab:red"}
+    for r in rows:
+        if r["optical_depth"] is None:
+            continue
+        marker = "s" if r["split"] == "held-out" else "o"
+        edge = "k" if not r["backend_right"] else colours[r["truth"]]
+        ax.scatter(
+            r["haze_floor"],
+            r["optical_depth_high"],
+            c=colours[r["truth"]],
+            marker=marker,
+            edgecolors=edge,
+            s=26,
+        )
+    ax.axhline(CLEAR_OPTICAL_DEPTH, color="k", lw=0.8, ls="--")
+    ax.axvline(CLEAR_HAZE_FLOOR, color="k", lw=0.8, ls="--")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_xlabel("haze floor (median dark channel / airlight)")
+    ax.set_ylabel("optical depth, upper end of the bootstrap interval")
+    ax.set_title("haze probe: none only in the lower-left box (o calibration, s held-out, black edge: wrong)")
+    for cls, c in colours.items():
+        ax.scatter([], [], c=c, label=f"true: {cls}")
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> None:
     args = tyro.extras.subcommand_cli_from_dict(
-        {"tradeoff": TradeoffArgs}, args=sys.argv[1:] if argv is None else argv, prog="td-bench"
+        {"tradeoff": TradeoffArgs, "probe": ProbeArgs},
+        args=sys.argv[1:] if argv is None else argv,
+        prog="td-bench",
     )
-    tradeoff(args)
+    if isinstance(args, ProbeArgs):
+        probe(args)
+    else:
+        tradeoff(args)
 
 
 def entrypoint() -> None:
