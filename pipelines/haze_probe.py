@@ -96,7 +96,9 @@ class HazeProbe:
     """``none``, ``homogeneous``, ``varying`` or ``unsure`` (keep a medium: see ``reason``)."""
     reason: str
     confidence: float = math.nan
-    """Share of the bootstrap resamples of the views whose verdict gives the same backend."""
+    """Share of the bootstrap resamples of the views whose verdict gives the same backend; 0 where the
+    probe abstained (no seed points, too few pairs, points all at one distance): a medium is kept
+    because nothing could be measured, not because haze was found."""
     beta: float = math.nan
     """Extinction fitted over all view pairs (1 / scene unit)."""
     median_distance: float = math.nan
@@ -331,7 +333,7 @@ def _probe(
 def _classify(out: HazeProbe, clear_share: float) -> None:
     """Set ``haze``, ``reason`` and ``confidence`` of a measured probe."""
     if out.distance_spread < MIN_DISTANCE_SPREAD:
-        out.haze, out.confidence = "unsure", 1.0
+        out.haze, out.confidence = "unsure", 0.0
         out.reason = (
             f"the views see the seed points at too similar distances to measure extinction (spread "
             f"{out.distance_spread:.2f} < {MIN_DISTANCE_SPREAD:g}): keeping a medium"

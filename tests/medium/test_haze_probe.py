@@ -144,12 +144,14 @@ def test_object_centred_capture_abstains():
                   distance_spread=1.1)  # fmt: skip
     _classify(p, clear_share=1.0)
     assert p.haze == "unsure" and p.backend == "triplane" and "too similar distances" in p.reason
+    assert p.confidence == 0.0  # an abstention: nothing was measured
 
 
 def test_probe_without_seed_points_keeps_the_field(scenes):
     scene = load_scene(DataConfig(data=scenes["courtyard", "uniform"]))
     p = probe_haze(DataManager(scene, torch.device("cpu")), scene.train_indices, None)
     assert p.haze == "unsure" and p.backend == "triplane" and "no seed points" in p.reason
+    assert p.confidence == 0.0
 
 
 @pytest.mark.parametrize("name", ["statue", "beer"])
