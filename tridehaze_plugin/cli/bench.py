@@ -310,7 +310,7 @@ def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_yscale("symlog", linthresh=0.1)
     ax.set_xlabel("haze floor (median dark channel / airlight)")
     ax.set_ylabel("optical depth, upper end of the bootstrap interval")
-    ax.set_title("haze probe: none only in the lower-left box (o calibration, s held-out, black edge: wrong)")
+    ax.set_title("haze probe: none only lower left (o calibration, s held-out, black edge: wrong)", fontsize=9)
     for cls, c in colours.items():
         ax.scatter([], [], c=c, label=f"true: {cls}")
     ax.legend(loc="upper left", fontsize=8)
