@@ -32,7 +32,8 @@ def mean_finite(values: list[float | None]) -> float | None:
     return sum(vals) / len(vals) if vals else None
 
 
-def _fmt(v: float | None, digits: int = 2) -> str:
+def fmt_number(v: float | None, digits: int = 2) -> str:
+    """A table cell: ``-`` for a missing number."""
     return "-" if v is None else f"{v:.{digits}f}"
 
 
@@ -72,8 +73,8 @@ def markdown_table(
         if fam == "baselines" and hazy:
             cells = [
                 "hazy input",
-                *(_fmt(hazy.get(s)) for s in scenes),
-                _fmt(mean_finite(list(hazy.values()))),
+                *(fmt_number(hazy.get(s)) for s in scenes),
+                fmt_number(mean_finite(list(hazy.values()))),
             ]
             lines.append("| " + " | ".join(cells + ["-"] * (len(head) - len(cells))) + " |")
         for name in FAMILIES[fam]:
@@ -83,13 +84,13 @@ def markdown_table(
                 per_scene.append(
                     "failed"
                     if r is not None and r["status"] != "ok"
-                    else _fmt(nested(r or {}, "restoration", "psnr"))
+                    else fmt_number(nested(r or {}, "restoration", "psnr"))
                 )
             m = means.get(name, {})
             lines.append(
                 "| " + " | ".join([
-                    VARIANTS[name].label or name, *per_scene, _fmt(m.get("psnr")), _fmt(m.get("ssim"), 3),
-                    _fmt(m.get("lpips"), 3), _fmt(m.get("low_T_psnr")), _fmt(m.get("wall_seconds"), 0),
+                    VARIANTS[name].label or name, *per_scene, fmt_number(m.get("psnr")), fmt_number(m.get("ssim"), 3),
+                    fmt_number(m.get("lpips"), 3), fmt_number(m.get("low_T_psnr")), fmt_number(m.get("wall_seconds"), 0),
                 ]) + " |"
             )  # fmt: skip
         lines.append("")
@@ -119,7 +120,7 @@ def claims_table(
                      "ours": [w, b], "agrees": verdict})  # fmt: skip
         lines.append(
             f"| {c.family} | {c.worse} < {c.better} | {c.paper[0]:.2f} < {c.paper[1]:.2f} | "
-            f"{_fmt(w)} vs {_fmt(b)} ({_fmt(diff)}) | {verdict or '-'} |"
+            f"{fmt_number(w)} vs {fmt_number(b)} ({fmt_number(diff)}) | {verdict or '-'} |"
         )
     if noise_db > 0:
         lines.append(f"\n`tie`: the difference is within the seed-to-seed spread ({noise_db:.2f} dB).")

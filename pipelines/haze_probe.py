@@ -88,6 +88,9 @@ GRID_CELLS = 16
 """Cells along the longer image side of the point z-buffer that drops occluded seed points."""
 
 
+FloatOrArray = float | np.ndarray
+
+
 @dataclass
 class HazeProbe:
     """The probe's measurements and verdict (all logged)."""
@@ -248,12 +251,15 @@ def _pairs(obs: _Observations) -> _Pairs:
     return _Pairs(np.array(a_s, int), np.array(b_s, int), np.array(sxy), np.array(sxx), xs, ys)
 
 
-def _clear(out: HazeProbe) -> bool:
-    """Both measurements say "clear" (and the fit is physically possible)."""
+def _says_clear(
+    optical_depth_high: FloatOrArray, optical_depth: FloatOrArray, floor: FloatOrArray
+) -> bool | np.ndarray:
+    """Both measurements say "clear" and the fit is physically possible (floats, or arrays of
+    bootstrap resamples, where each resample's own estimate serves as its upper end)."""
     return (
-        out.optical_depth_high < CLEAR_OPTICAL_DEPTH
-        and out.optical_depth > -IMPOSSIBLE_OPTICAL_DEPTH
-        and out.haze_floor < CLEAR_HAZE_FLOOR
+        (optical_depth_high < CLEAR_OPTICAL_DEPTH)
+        & (optical_depth > -IMPOSSIBLE_OPTICAL_DEPTH)
+        & (floor < CLEAR_HAZE_FLOOR)
     )
 
 
@@ -311,7 +317,6 @@ def _probe(
         )  # fmt: skip
     beta = float(pairs.sxy.sum() / max(float(pairs.sxx.sum()), 1e-12))
     median_distance = float(np.nanmedian(obs.dist))
-    spread = obs.distance_spread
     taus, floors = _bootstrap(obs, pairs, median_distance, seed)
     taus = np.where(np.isfinite(taus), taus, 0.0)
     lo, hi = (float(q) for q in np.quantile(taus, INTERVAL))
@@ -319,14 +324,9 @@ def _probe(
     out = HazeProbe(
         "homogeneous", "", beta=beta, median_distance=median_distance, optical_depth=beta * median_distance,
         optical_depth_low=lo, optical_depth_high=hi, haze_floor=float(np.median(obs.floor)),
-        distance_spread=spread, variation_f=f, variation_effect=effect, pairs=len(pairs.a), views=len(views),
+        distance_spread=obs.distance_spread, variation_f=f, variation_effect=effect, pairs=len(pairs.a), views=len(views),
     )  # fmt: skip
-    # the bootstrap's verdicts on "clear" (each resample judged by its own estimates)
-    clear_votes = (
-        (taus < CLEAR_OPTICAL_DEPTH) & (taus > -IMPOSSIBLE_OPTICAL_DEPTH) & (floors < CLEAR_HAZE_FLOOR)
-    )
-    clear_share = float(clear_votes.mean()) if spread >= MIN_DISTANCE_SPREAD else 0.0
-    _classify(out, clear_share)
+    _classify(out, clear_share=float(_says_clear(taus, taus, floors).mean()))
     return out
 
 
@@ -339,7 +339,7 @@ def _classify(out: HazeProbe, clear_share: float) -> None:
             f"{out.distance_spread:.2f} < {MIN_DISTANCE_SPREAD:g}): keeping a medium"
         )
         return
-    if _clear(out):
+    if _says_clear(out.optical_depth_high, out.optical_depth, out.haze_floor):
         if clear_share >= MIN_CONFIDENCE:
             out.haze, out.confidence = "none", clear_share
             out.reason = (

@@ -31,7 +31,7 @@ import torch
 import tyro
 
 from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
-from pipelines.ablation_table import mean_finite, nested
+from pipelines.ablation_table import fmt_number, mean_finite, nested
 from pipelines.run_config import write_text_atomic
 from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
 from tridehaze_plugin.cli.common import run_cli
@@ -96,10 +96,6 @@ def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]
     return rows
 
 
-def _f(v: Any, digits: int) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
 def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
     lines = [
         "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front (PSNR / LPIPS) | "
@@ -109,11 +105,11 @@ def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
     ]
     for r in sorted(rows, key=lambda r: r["wall_seconds"] or 1e18):
         lines.append(
-            f"| {r['name']} | {r['steps'] or '-'} | {_f(r['wall_seconds'], 0)} | {_f(r['cpu_seconds'], 0)} | "
-            f"{_f(r['peak_rss_mb'], 0)} | {_f(r['gaussians'], 0)} | {_f(r['psnr'], 2)} | {_f(r['ssim'], 3)} | "
-            f"{_f(r['lpips'], 3)} | {'**PSNR**' if r['pareto'] else ''}"
+            f"| {r['name']} | {r['steps'] or '-'} | {fmt_number(r['wall_seconds'], 0)} | {fmt_number(r['cpu_seconds'], 0)} | "
+            f"{fmt_number(r['peak_rss_mb'], 0)} | {fmt_number(r['gaussians'], 0)} | {fmt_number(r['psnr'], 2)} | {fmt_number(r['ssim'], 3)} | "
+            f"{fmt_number(r['lpips'], 3)} | {'**PSNR**' if r['pareto'] else ''}"
             f"{' / ' if r['pareto'] and r['pareto_lpips'] else ''}{'**LPIPS**' if r['pareto_lpips'] else ''} | "
-            + " | ".join(_f(r.get(f"psnr_{s}"), 2) for s in scenes)
+            + " | ".join(fmt_number(r.get(f"psnr_{s}"), 2) for s in scenes)
             + " |"
         )
     return "\n".join(lines) + "\n"
@@ -310,7 +306,9 @@ def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_yscale("symlog", linthresh=0.1)
     ax.set_xlabel("haze floor (median dark channel / airlight)")
     ax.set_ylabel("optical depth, upper end of the bootstrap interval")
-    ax.set_title("haze probe: none only lower left (o calibration, s held-out, black edge: wrong)", fontsize=9)
+    ax.set_title(
+        "haze probe: none only lower left (o calibration, s held-out, black edge: wrong)", fontsize=9
+    )
     for cls, c in colours.items():
         ax.scatter([], [], c=c, label=f"true: {cls}")
     ax.legend(loc="upper left", fontsize=8)
