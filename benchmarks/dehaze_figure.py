@@ -21,8 +21,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from pipelines.metrics import psnr  # noqa: E402
-from pipelines.run_loader import load_run  # noqa: E402
+from pipelines.engine.metrics import psnr  # noqa: E402
+from pipelines.engine.run_loader import load_run  # noqa: E402
 
 
 def _u8(x: torch.Tensor) -> np.ndarray:

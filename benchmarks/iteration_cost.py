@@ -38,9 +38,9 @@ if str(REPO) not in sys.path:
 
 from components.data.loader import load_scene  # noqa: E402
 from components.synth.generate import SceneConfig, generate_scene  # noqa: E402
-from pipelines.datamanager import DataManager  # noqa: E402
-from pipelines.optimizers import Optimizers  # noqa: E402
-from pipelines.trainer import optimization_step  # noqa: E402
+from pipelines.engine.datamanager import DataManager  # noqa: E402
+from pipelines.engine.optimizers import Optimizers  # noqa: E402
+from pipelines.engine.trainer import optimization_step  # noqa: E402
 from tridehaze_plugin.registry import REGISTRY, load_all  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results"
@@ -83,8 +83,8 @@ def iteration(pipe, opt, step: int) -> float:
 
 def stride_quality(config_path: Path, strides: list[int | None]) -> list[dict]:
     """Render a trained run's test views with each stride; errors against stride 1 and the inputs."""
-    from pipelines.metrics import psnr
-    from pipelines.run_loader import load_run
+    from pipelines.engine.metrics import psnr
+    from pipelines.engine.run_loader import load_run
 
     run = load_run(config_path)
     comp = run.pipeline.compositor

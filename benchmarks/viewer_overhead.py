@@ -43,7 +43,8 @@ if str(REPO) not in sys.path:
 from rich.console import Console  # noqa: E402
 
 from components.synth.generate import SceneConfig, generate_scene  # noqa: E402
-from pipelines.trainer import Trainer  # noqa: E402
+from pipelines.engine.trainer import Trainer  # noqa: E402
+from pipelines.viewer import TrainingViewer  # noqa: E402
 from tridehaze_plugin.cli.train import parse_args  # noqa: E402
 
 RESULTS = REPO / "benchmarks" / "results"
@@ -102,7 +103,7 @@ def run_once(
         "--vis", "none" if mode is None else "viewer", "--viewer.port", "0", "--viewer.no-wait-at-end",
         "--viewer.render-share", str(share or args.render_share), "--viewer.max-resolution", str(args.max_resolution),
     ]  # fmt: skip
-    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
+    trainer = Trainer(parse_args(argv), console=Console(quiet=True), live_view=TrainingViewer())
     trainer.setup()
     browser = None
     try:

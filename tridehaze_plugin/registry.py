@@ -1,7 +1,8 @@
 """Component registry: every swappable building block is registered by *kind* and *name*.
 
-Built-in components register themselves when their module is imported (see
-:func:`load_all`). Third-party packages add their own in three ways, mirroring nerfstudio:
+Components register themselves when their module is imported. The built-ins are this
+distribution's own ``tridehaze.components`` entry points (pyproject.toml), imported first by
+:func:`load_all`; third-party packages add theirs in three ways, mirroring nerfstudio:
 
 * entry point group ``tridehaze.components``: the entry point names a module (imported for
   its registration side effects) or a callable taking the :class:`Registry`;
@@ -26,6 +27,7 @@ from importlib import metadata
 from typing import Any
 
 from tridehaze_plugin.errors import PluginError
+from tridehaze_plugin.method_spec import MethodSpec
 
 KINDS: tuple[str, ...] = (
     "rasterizer",
@@ -42,8 +44,9 @@ COMPONENT_GROUP = "tridehaze.components"
 METHOD_GROUP = "tridehaze.methods"
 PLUGIN_ENV_VAR = "TRIDEHAZE_PLUGINS"
 
-BUILTIN_MODULES: tuple[str, ...] = ("components", "pipelines", "tridehaze_plugin.methods")
-"""Packages whose import registers the built-in components and methods."""
+DISTRIBUTION = "tridehaze"
+"""This project's distribution: its own ``tridehaze.components`` entry points are the built-ins
+(declared in pyproject.toml, so this bottom layer never names the layers above it)."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +161,16 @@ def register(kind: str, name: str, obj: Any = None, *, description: str = "", re
     return REGISTRY.register(kind, name, obj, description=description, replace=replace)
 
 
+def method(name: str, description: str) -> Callable[[Callable[[], Any]], Callable[[], Any]]:
+    """Decorator registering a config factory as the method ``name`` (the factory is returned as is)."""
+
+    def wrap(factory: Callable[[], Any]) -> Callable[[], Any]:
+        register("method", name, MethodSpec(name=name, description=description, config_factory=factory))
+        return factory
+
+    return wrap
+
+
 _loaded = False
 
 
@@ -167,8 +180,8 @@ def load_all(*, force: bool = False, warn: Callable[[str], None] | None = None) 
     if _loaded and not force:
         return REGISTRY
     _loaded = True
-    for mod in BUILTIN_MODULES:
-        importlib.import_module(mod)
+    for module in builtin_modules():
+        importlib.import_module(module)  # a broken built-in is a bug: let it raise
     warn = warn or _warn_stderr
     before = len(REGISTRY.failures)
     _load_entry_points(REGISTRY)
@@ -186,8 +199,27 @@ def _entry_points(group: str) -> Iterable[metadata.EntryPoint]:
     return metadata.entry_points(group=group)
 
 
+def _is_builtin(ep: metadata.EntryPoint) -> bool:
+    dist = ep.dist  # None for entry points built by hand (tests)
+    return dist is not None and dist.name == DISTRIBUTION
+
+
+def builtin_modules() -> list[str]:
+    """Modules whose import registers the built-in components and methods, in entry-point name order."""
+    found = sorted((ep for ep in _entry_points(COMPONENT_GROUP) if _is_builtin(ep)), key=lambda ep: ep.name)
+    if not found:
+        raise PluginError(
+            f"the built-in components are not registered: no {COMPONENT_GROUP} entry points of "
+            f"the {DISTRIBUTION!r} distribution were found",
+            fix="install the project (pip install -e . from its folder) rather than running it from a path",
+        )
+    return [ep.value for ep in found]
+
+
 def _load_entry_points(reg: Registry) -> None:
     for ep in _entry_points(COMPONENT_GROUP):
+        if _is_builtin(ep):
+            continue
         _load_one(reg, f"entry point {COMPONENT_GROUP}:{ep.name}", ep.value, ep.load, method_name=None)
     for ep in _entry_points(METHOD_GROUP):
         _load_one(reg, f"entry point {METHOD_GROUP}:{ep.name}", ep.value, ep.load, method_name=ep.name)
@@ -211,8 +243,6 @@ def _import_target(target: str) -> Any:
 def _load_one(
     reg: Registry, source: str, target: str, loader: Callable[[], Any], method_name: str | None
 ) -> None:
-    from tridehaze_plugin.methods import MethodSpec  # local: methods imports pipelines
-
     reg._current_origin = target
     try:
         obj = loader()

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-import torch
 
 from components.data.cameras import Cameras
 from components.data.config import DataConfig
@@ -160,7 +160,7 @@ class WaveField:
 # depth
 
 
-def _fill_invalid(depth: np.ndarray, valid: np.ndarray, where: str) -> np.ndarray:
+def fill_invalid_depth(depth: np.ndarray, valid: np.ndarray, where: str) -> np.ndarray:
     if not valid.any():
         raise UserError(
             "a view has no valid depth at all", where=where, fix="check the depth maps or the run"
@@ -179,39 +179,7 @@ def dataset_depths(scene: SceneData) -> list[np.ndarray]:
         H, W = int(scene.cameras.height[i]), int(scene.cameras.width[i])
         if d.shape != (H, W):
             d = cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST)
-        out.append(_fill_invalid(d, np.isfinite(d) & (d > 0), str(p)))
-    return out
-
-
-def run_depths(scene: SceneData, config_path: Path, min_alpha: float) -> list[np.ndarray]:
-    """Depth [H, W] (dataset units, z-depth) rendered from a trained run for every view of ``scene``."""
-    from pipelines.run_loader import load_run  # heavy import, only when a run is used
-
-    config_path = Path(config_path)
-    if not config_path.is_file():
-        raise UserError("run config not found", where=str(config_path), fix="pass a run's config.yml")
-    run = load_run(config_path)
-    run_root = run.datamanager.scene.root.resolve()
-    if run_root != scene.root.resolve():
-        raise UserError(
-            f"the run was trained on {run_root}, not on this dataset",
-            where=str(config_path),
-            fix="pass a run trained on --data",
-        )
-    tr = run.datamanager.scene.transform
-    c2w_n = tr.apply_c2w(scene.cameras.camtoworlds.double()).float()  # into the run's normalised world
-    out = []
-    for i in range(len(scene)):
-        cam = Cameras(
-            c2w_n[i : i + 1],
-            *(getattr(scene.cameras, k)[i : i + 1] for k in ("fx", "fy", "cx", "cy", "width", "height")),
-        )
-        with torch.no_grad():
-            res = run.pipeline.render(cam)
-        depth = res["depth"][..., 0].double().numpy() / tr.scale  # normalised -> dataset units
-        alpha = res["alpha"][..., 0].numpy() if "alpha" in res else np.ones_like(depth)
-        valid = (alpha >= min_alpha) & np.isfinite(depth) & (depth > 0)
-        out.append(_fill_invalid(depth, valid, f"{config_path} view {scene.names()[i]}").astype(np.float32))
+        out.append(fill_invalid_depth(d, np.isfinite(d) & (d > 0), str(p)))
     return out
 
 
@@ -226,8 +194,16 @@ def _unique_stems(names: list[str]) -> list[str]:
     return [f"{i:04d}_{s}" for i, s in enumerate(stems)]
 
 
-def haze_dataset(cfg: HazeConfig) -> dict[str, Any]:
-    """Write the hazy copy of ``cfg.data`` into ``cfg.output_dir``; returns the metadata written."""
+RunDepths = Callable[[SceneData, Path, float], list[np.ndarray]]
+"""Renders depth [H, W] (dataset units) for every view of a scene from a trained run's config.yml,
+keeping depth only where the run's opacity reaches the given minimum (pipelines/evaluation/run_depth.py)."""
+
+
+def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[str, Any]:
+    """Write the hazy copy of ``cfg.data`` into ``cfg.output_dir``; returns the metadata written.
+
+    ``run_depths`` serves ``--depth-from-run``: rendering a run belongs to the pipelines layer,
+    which passes it in (this component never imports upward)."""
     cfg.check()
     root = check_root(cfg.data)
     out = check_output_dir(cfg.output_dir, cfg.overwrite)
@@ -245,6 +221,8 @@ def haze_dataset(cfg: HazeConfig) -> dict[str, Any]:
         )
         scene = load_scene(data_cfg)
         if cfg.depth_from_run is not None:
+            if run_depths is None:
+                raise ValueError("haze_dataset: --depth-from-run needs a run_depths renderer")
             depths, source = run_depths(scene, cfg.depth_from_run, cfg.min_alpha), f"run {cfg.depth_from_run}"
         elif all(p is not None for p in scene.depth_paths):
             depths, source = dataset_depths(scene), "dataset depth maps"

@@ -12,15 +12,16 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console
 
+from pipelines.engine.live_view import LiveViewProvider
 from pipelines.viewer.ports import check_port_free
 from tridehaze_plugin.errors import UserError
 
-__all__ = ["check_port_free", "start_training_viewer", "wants_viewer"]
+__all__ = ["TrainingViewer", "check_port_free", "start_training_viewer", "wants_viewer"]
 
 if TYPE_CHECKING:
-    from pipelines.base import Pipeline
-    from pipelines.config import TrainerConfig
-    from pipelines.datamanager import DataManager
+    from pipelines.engine.config import TrainerConfig
+    from pipelines.engine.contract import Pipeline
+    from pipelines.engine.datamanager import DataManager
     from pipelines.viewer.server import Viewer
 
 
@@ -57,3 +58,16 @@ def start_training_viewer(
         return None
     console.print(f"viewer: [bold]{url}[/] (open in a browser)", highlight=False)
     return viewer
+
+
+class TrainingViewer(LiveViewProvider):
+    """The browser viewer as the trainer's live view (``--vis viewer|auto``)."""
+
+    def preflight(self, cfg: TrainerConfig) -> None:
+        if cfg.vis == "viewer":  # a port in use fails now, not after loading data and making a run folder
+            check_port_free(cfg.viewer.host, cfg.viewer.port)
+
+    def start(
+        self, cfg: TrainerConfig, pipeline: Pipeline, datamanager: DataManager, console: Console
+    ) -> Viewer | None:
+        return start_training_viewer(cfg, pipeline, datamanager, console)

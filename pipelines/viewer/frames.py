@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from torch import Tensor
 
-from pipelines.visualize import UNIT_RANGE, to_png
+from pipelines.evaluation.visualize import UNIT_RANGE, to_png
 
 
 def compose_frame(

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pipelines.base import Pipeline
-from pipelines.config import ViewerConfig
+from pipelines.engine.config import ViewerConfig
+from pipelines.engine.contract import Pipeline
 from pipelines.viewer.camera_convert import image_size, viser_to_camera
 from pipelines.viewer.frames import compose_frame
 

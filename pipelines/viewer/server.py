@@ -1,6 +1,6 @@
 """The viser server: scene (training cameras, seed points), GUI and one view state per browser.
 
-The viewer talks to the model only through the :class:`~pipelines.base.Pipeline` contract
+The viewer talks to the model only through the :class:`~pipelines.engine.contract.Pipeline` contract
 (``render``, ``output_names``, ``stats``); the output list in the browser is whatever the
 pipeline names. Per browser: the output dropdown, the split view and a status line (each browser
 has its own camera anyway); shared by all: the training readouts, pause / resume and the toggles
@@ -21,9 +21,10 @@ import numpy as np
 import viser
 from rich.console import Console
 
-from pipelines.base import Pipeline
-from pipelines.config import ViewerConfig
-from pipelines.datamanager import DataManager
+from pipelines.engine.config import ViewerConfig
+from pipelines.engine.contract import Pipeline
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.live_view import LiveView
 from pipelines.viewer.camera_convert import camera_to_viser, image_size, up_direction
 from pipelines.viewer.ports import check_port_free, port_in_use
 from pipelines.viewer.render_loop import CameraPose, RenderLoop, TicketLock, ViewState
@@ -33,7 +34,7 @@ READOUT_SECONDS = 0.5
 """Readouts are refreshed at most this often (one websocket message each)."""
 
 
-class Viewer:
+class Viewer(LiveView):
     """A live view of a pipeline in the browser, while training (``training=True``) or of a saved run.
 
     The trainer takes :attr:`lock` around each optimisation step and calls :meth:`update` after it;

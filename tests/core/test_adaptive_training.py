@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from pipelines.checkpoint import latest_checkpoint, load_checkpoint
-from pipelines.trainer import Trainer
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError

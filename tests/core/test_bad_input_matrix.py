@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from pipelines.trainer import Trainer
+from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 

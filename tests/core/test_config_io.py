@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.config import TrainerConfig
-from pipelines.run_config import load_config, save_config
+from pipelines.engine.config import TrainerConfig
+from pipelines.engine.run_config import load_config, save_config
 from tridehaze_plugin.config import merge_dict, read_yaml_mapping, to_dict, validate
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import load_all

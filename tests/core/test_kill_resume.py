@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from pipelines.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
 from tests.tiny_scenes import tiny_hazy_scene
 
 STEPS = 60

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from pipelines.metrics import psnr, ssim
+from pipelines.engine.metrics import psnr, ssim
 
 
 def test_psnr_known_value_and_identity():

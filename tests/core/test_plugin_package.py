@@ -34,7 +34,7 @@ INIT = '''
 """A toy plugin: one method preset and one loss."""
 import dataclasses
 
-from tridehaze_plugin.methods import MethodSpec
+from tridehaze_plugin.method_spec import MethodSpec
 
 
 def _config():

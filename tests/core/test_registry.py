@@ -105,7 +105,7 @@ def test_failing_plugin_is_reported_not_fatal(tmp_path, monkeypatch):
 def test_patched_entry_points_register_method_and_component(monkeypatch):
     from importlib.metadata import EntryPoint
 
-    from tridehaze_plugin.methods import MethodSpec
+    from tridehaze_plugin.method_spec import MethodSpec
 
     r = Registry()
     spec = MethodSpec("ep-method", "from an entry point", lambda: None)

@@ -9,9 +9,9 @@ import pytest
 import torch
 from rich.console import Console
 
-from pipelines.base import StepResult
-from pipelines.checkpoint import latest_checkpoint, load_checkpoint
-from pipelines.trainer import MAX_BAD_STEPS, Trainer, TrainingDiverged
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.contract import StepResult
+from pipelines.engine.trainer import MAX_BAD_STEPS, Trainer, TrainingDiverged
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args, split_resume
 from tridehaze_plugin.errors import ConfigError

@@ -12,9 +12,9 @@ import torch
 from components.data.images import write_image_atomic
 from components.data.ply import write_ply_points
 from components.rasterizers.torch_reference import TorchRasterizer
-from pipelines.checkpoint import latest_checkpoint, load_checkpoint
-from pipelines.run_config import load_config
-from pipelines.trainer import Trainer
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.run_config import load_config
+from pipelines.engine.trainer import Trainer
 from tests.data.synth import GL_CV, ring_poses
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import UserError

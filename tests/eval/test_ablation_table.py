@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from pipelines.ablation import FAMILIES, PAPER_PSNR, paper_claims, plan
-from pipelines.ablation_table import claims_table, csv_text, markdown_table, variant_means
+from pipelines.experiments.ablation import FAMILIES, PAPER_PSNR, paper_claims, plan
+from pipelines.experiments.tables import claims_table, csv_text, markdown_table, variant_means
 
 
 def _result(scene: str, variant: str, psnr: float, status: str = "ok") -> dict:

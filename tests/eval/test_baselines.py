@@ -7,7 +7,7 @@ import torch
 
 from components.data.loader import load_scene
 from components.losses.dcp import dehaze, estimate_dcp
-from pipelines.datamanager import DataManager
+from pipelines.engine.datamanager import DataManager
 from tests.export.tiny_run import train_tiny
 from tridehaze_plugin.cli.train import parse_args
 

@@ -12,9 +12,9 @@ from torch import nn
 from components.data.config import DataConfig
 from components.data.images import read_depth
 from components.data.loader import load_scene
-from pipelines.base import Pipeline, StepResult
-from pipelines.datamanager import DataManager
-from pipelines.evaluate import REFERENCE_T_KEY, evaluate, evaluate_split
+from pipelines.engine.contract import Pipeline, StepResult
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.evaluate import REFERENCE_T_KEY, evaluate, evaluate_split
 
 DELTA = 0.1
 """Error added to the clean render inside the low-visibility third of each view."""

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipelines.probe_bench import confusion, mistake_costs, restoration_table
-from pipelines.probe_set import scene_set
+from pipelines.experiments.probe_bench import confusion, mistake_costs, restoration_table
+from pipelines.experiments.probe_set import scene_set
 
 
 def _row(scene, truth, haze, right, sparse=False, split="held-out"):

@@ -9,7 +9,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipelines.tradeoff import BASE_STEPS, COMBOS, KNOBS, grid, knob_flags, pareto_front, parse_knobs
+from pipelines.experiments.tradeoff import (
+    BASE_STEPS,
+    COMBOS,
+    KNOBS,
+    grid,
+    knob_flags,
+    pareto_front,
+    parse_knobs,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -22,7 +22,7 @@ from components.export.splat_ply import (
 )
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.rasterizers.torch_reference import TorchRasterizer
-from pipelines.run_loader import load_run
+from pipelines.engine.run_loader import load_run
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.cli.export import main as export_main
 from tridehaze_plugin.errors import UserError

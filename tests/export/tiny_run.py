@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from components.synth.generate import SceneConfig, generate_scene
-from pipelines.trainer import Trainer
+from pipelines.engine.trainer import Trainer
 from tridehaze_plugin.cli.train import parse_args
 
 

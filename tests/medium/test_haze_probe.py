@@ -15,8 +15,9 @@ import yaml
 
 from components.data.config import DataConfig
 from components.data.loader import load_scene
-from pipelines.datamanager import DataManager
-from pipelines.haze_probe import (
+from pipelines.engine.datamanager import DataManager
+from pipelines.experiments.probe_set import degrade_points
+from pipelines.tridehaze.probe import (
     CLEAR_HAZE_FLOOR,
     CLEAR_OPTICAL_DEPTH,
     MIN_CONFIDENCE,
@@ -26,7 +27,6 @@ from pipelines.haze_probe import (
     _classify,
     probe_haze,
 )
-from pipelines.probe_set import degrade_points
 from tests.conftest import require_real
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
@@ -163,7 +163,7 @@ def test_object_centred_real_photos_keep_a_medium(name):
 
 
 def test_auto_backend_is_resolved_saved_and_logged(scenes, tmp_path):
-    from pipelines.trainer import Trainer
+    from pipelines.engine.trainer import Trainer
 
     cfg = parse_args([
         "tri-dehaze", "--data", str(scenes["courtyard", "patchy"]), "--output-dir", str(tmp_path),

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from pipelines.run_loader import load_run
-from pipelines.trainer import Trainer, optimization_step
+from pipelines.engine.run_loader import load_run
+from pipelines.engine.trainer import Trainer, optimization_step
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 
@@ -162,7 +162,7 @@ def test_densification_sees_uncompensated_gradient(hazy_scene, tmp_path):
 
 def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
     cfg = parse_args(["tri-dehaze", "--data", str(hazy_scene), "--max-steps", "15000"])
-    from pipelines.haze_priors import scaled_step
+    from pipelines.tridehaze.priors import scaled_step
 
     assert scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, 15000) == 3000
     assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 200
@@ -173,7 +173,7 @@ def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
 def test_auto_depth_prior_prefers_files_then_sfm_then_warmup():
     from types import SimpleNamespace
 
-    from pipelines.haze_priors import resolve_depth_prior
+    from pipelines.tridehaze.priors import resolve_depth_prior
 
     def dm(depths, points):
         return SimpleNamespace(train_indices=[0, 1], scene=SimpleNamespace(depth_paths=depths, points=points))

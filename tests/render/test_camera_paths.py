@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from components.data.cameras import Cameras
-from pipelines.camera_paths import (
+from pipelines.evaluation.camera_paths import (
     interpolate_path,
     look_at,
     make_path,

@@ -37,8 +37,8 @@ from components.synth.medium import make_medium
 from components.synth.render import apply_medium, render_clean
 from components.synth.trajectories import Intrinsics, look_at
 from components.synth.writer import frame_entry, write_json
-from pipelines.optimizers import Optimizers
-from pipelines.trainer import Trainer
+from pipelines.engine.optimizers import Optimizers
+from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import TINY, tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 

@@ -11,7 +11,7 @@ import pytest
 import torch
 from rich.console import Console
 
-from pipelines.trainer import Trainer
+from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 

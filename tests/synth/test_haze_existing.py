@@ -14,6 +14,7 @@ from components.data.config import DataConfig
 from components.data.images import read_image
 from components.data.loader import load_scene
 from components.synth.haze_existing import HazeConfig, WaveField, haze_dataset
+from pipelines.evaluation.run_depth import run_depths
 from tests.synth.conftest import make_tiny
 from tridehaze_plugin.errors import UserError
 
@@ -120,8 +121,8 @@ def test_depth_from_a_run_is_in_dataset_units(clean_dataset, tmp_path):
     """Depth rendered by a (tiny) trained run, converted from the run's normalised world back to metres."""
     import torch
 
-    from pipelines.run_loader import load_run
-    from pipelines.trainer import Trainer
+    from pipelines.engine.run_loader import load_run
+    from pipelines.engine.trainer import Trainer
     from tridehaze_plugin.cli.train import parse_args
 
     args = (
@@ -135,7 +136,7 @@ def test_depth_from_a_run_is_in_dataset_units(clean_dataset, tmp_path):
     Trainer(cfg).train()
     config = next((tmp_path / "runs").rglob("config.yml"))
     out = tmp_path / "foggy"
-    meta = haze_dataset(_cfg(clean_dataset, out, depth_from_run=config, beta=0.02, min_alpha=0.0))
+    meta = haze_dataset(_cfg(clean_dataset, out, depth_from_run=config, beta=0.02, min_alpha=0.0), run_depths)
     assert meta["depth_source"].startswith("run")
     run = load_run(config)
     scale = run.datamanager.scene.transform.scale

@@ -12,8 +12,8 @@ import torch
 
 from components.data.cameras import Cameras
 from components.data.loader import load_scene
-from pipelines.base import Pipeline, StepResult
-from pipelines.datamanager import DataManager
+from pipelines.engine.contract import Pipeline, StepResult
+from pipelines.engine.datamanager import DataManager
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 

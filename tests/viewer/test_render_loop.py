@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.config import ViewerConfig
+from pipelines.engine.config import ViewerConfig
 from pipelines.viewer.frames import compose_frame
 from pipelines.viewer.render_loop import CameraPose, RenderLoop, RenderThrottle, TicketLock, ViewState
 from tests.viewer.helpers import FakePipeline

@@ -13,9 +13,9 @@ import viser
 from rich.console import Console
 from websockets.sync.client import connect
 
-from pipelines.config import ViewerConfig
-from pipelines.trainer import Trainer
-from pipelines.viewer import wants_viewer
+from pipelines.engine.config import ViewerConfig
+from pipelines.engine.trainer import Trainer
+from pipelines.viewer import TrainingViewer, wants_viewer
 from pipelines.viewer.ports import check_port_free
 from pipelines.viewer.server import Viewer
 from tests.tiny_scenes import tiny_hazy_scene
@@ -62,7 +62,7 @@ def test_td_train_checks_the_port_before_any_work(tmp_path):
         cfg = parse_args(["vanilla-gs", "--data", str(tmp_path / "absent"), "--output-dir", str(tmp_path / "out"),
                           "--vis", "viewer", "--viewer.port", str(port)])  # fmt: skip
         with pytest.raises(UserError, match="already in use"):
-            Trainer(cfg, console=Console(quiet=True)).setup()
+            Trainer(cfg, console=Console(quiet=True), live_view=TrainingViewer()).setup()
     assert not (tmp_path / "out").exists()  # failed before loading data or making a run folder
 
 
@@ -102,7 +102,7 @@ def test_training_survives_viewers_that_come_and_go_and_pauses(tmp_path):
     argv = ["tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / "out"), "--max-steps", "40",
             "--vis", "viewer", "--viewer.port", "0", "--viewer.no-wait-at-end", "--steps-per-save", "1000",
             *TRAIN_FLAGS]  # fmt: skip
-    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
+    trainer = Trainer(parse_args(argv), console=Console(quiet=True), live_view=TrainingViewer())
     trainer.setup()
     viewer = trainer.viewer
     assert viewer is not None and viewer.training

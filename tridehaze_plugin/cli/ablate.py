@@ -22,12 +22,12 @@ import tyro
 
 from components.data.config import DataConfig
 from components.data.loader import load_scene
-from pipelines.ablation import FAMILIES, plan
-from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
-from pipelines.ablation_table import bar_plot, claims_table, csv_text, markdown_table
-from pipelines.datamanager import DataManager
-from pipelines.metrics import psnr
-from pipelines.run_config import write_text_atomic
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.metrics import psnr
+from pipelines.engine.run_config import write_text_atomic
+from pipelines.experiments.ablation import FAMILIES, plan
+from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+from pipelines.experiments.tables import bar_plot, claims_table, csv_text, markdown_table
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.errors import ConfigError
 

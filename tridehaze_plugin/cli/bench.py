@@ -4,7 +4,7 @@
 
     td-bench probe --set-dir probe-set --output-dir probe [--restoration]
 
-``probe`` builds the haze probe's scene set (pipelines/probe_set.py), runs the probe on every scene
+``probe`` builds the haze probe's scene set (pipelines/experiments/probe_set.py), runs the probe on every scene
 and prints the confusion tables (whole set, held-out part) and, with ``--restoration``, trains the
 fast preset and tri-dehaze on the hazy scenes and prices each wrong verdict; writes
 ``OUT/probe.{md,json,csv,png}``.
@@ -30,10 +30,10 @@ from typing import Any, Literal
 import torch
 import tyro
 
-from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
-from pipelines.ablation_table import fmt_number, mean_finite, nested
-from pipelines.run_config import write_text_atomic
-from pipelines.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
+from pipelines.engine.run_config import write_text_atomic
+from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+from pipelines.experiments.tables import fmt_number, mean_finite, nested
+from pipelines.experiments.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.errors import ConfigError
 
@@ -230,9 +230,15 @@ class ProbeArgs:
 
 
 def probe(args: ProbeArgs) -> None:
-    from pipelines.ablation_runner import AblationRunner, Job, RunnerOptions
-    from pipelines.probe_bench import confusion, load_results, mistake_costs, probe_scene, restoration_table
-    from pipelines.probe_set import build, restoration_variants, scene_set
+    from pipelines.experiments.probe_bench import (
+        confusion,
+        load_results,
+        mistake_costs,
+        probe_scene,
+        restoration_table,
+    )
+    from pipelines.experiments.probe_set import build, restoration_variants, scene_set
+    from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
 
     if args.jobs < 1 or args.threads < 1:
         raise ConfigError("--jobs and --threads must be >= 1")
@@ -284,7 +290,7 @@ def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipelines.haze_probe import CLEAR_HAZE_FLOOR, CLEAR_OPTICAL_DEPTH
+    from pipelines.tridehaze.probe import CLEAR_HAZE_FLOOR, CLEAR_OPTICAL_DEPTH
 
     fig, ax = plt.subplots(figsize=(6.6, 4.6))
     colours = {"none": "tab:gray", "homogeneous": "tab:blue", "varying": "tab:red"}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -50,15 +49,3 @@ def check_output_folder(path: Path, flag: str = "--output-dir") -> None:
         raise ConfigError(
             f"{flag} is not writable", where=str(probe), fix="pick another folder or fix its permissions"
         )
-
-
-def device_arg(name: str, cuda_available: bool, flag: str = "--device") -> str:
-    """``auto`` -> ``cuda`` or ``cpu``; ``cpu``, ``cuda`` and ``cuda:N`` as given; anything else, or
-    CUDA without a GPU, is a ConfigError (not a confusing failure later, e.g. while loading a checkpoint)."""
-    if name == "auto":
-        return "cuda" if cuda_available else "cpu"
-    if name != "cpu" and not re.fullmatch(r"cuda(:\d+)?", name):
-        raise ConfigError(f"{flag} must be auto, cpu, cuda or cuda:N, got {name!r}")
-    if name.startswith("cuda") and not cuda_available:
-        raise ConfigError(f"{flag} {name} was asked for but CUDA is not available", fix=f"use {flag} cpu")
-    return name

@@ -22,11 +22,12 @@ import tyro
 
 from components.data.images import write_image_atomic
 from components.metrics.lpips import LPIPSUnavailable, load_lpips
-from pipelines.eval_report import markdown_report, side_by_side
-from pipelines.evaluate import BinSource, ViewRender, evaluate
-from pipelines.run_config import write_text_atomic
-from pipelines.run_loader import load_run
-from tridehaze_plugin.cli.common import device_arg, run_cli
+from pipelines.engine.device import resolve_device
+from pipelines.engine.evaluate import BinSource, ViewRender, evaluate
+from pipelines.engine.run_config import write_text_atomic
+from pipelines.engine.run_loader import load_run
+from pipelines.evaluation.report import markdown_report, side_by_side
+from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
         )
     if out_json.is_dir():
         raise ConfigError("--output-path is a folder", where=str(out_json), fix="pass a .json file path")
-    device = device_arg(args.device, torch.cuda.is_available())
+    device = str(resolve_device(args.device))
     run = load_run(args.load_config, device=device)
     if not run.datamanager.scene.indices(args.split):
         raise ConfigError(

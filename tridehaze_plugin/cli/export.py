@@ -15,14 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import torch
 import tyro
 from rich.console import Console
 
 from components.export.medium import export_medium
 from components.export.splat_ply import SplatData, to_original_frame, write_splat_ply
 from components.synth.writer import check_output_dir, staged_output, write_json
-from pipelines.run_loader import load_run
+from pipelines.engine.device import resolve_device
+from pipelines.engine.run_loader import load_run
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.errors import ConfigError, UserError
 
@@ -63,9 +63,7 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
             fix="pass the config.yml of a td-train run folder",
         )
     check_output_dir(args.output_dir, args.overwrite)
-    device = "cuda" if args.device == "auto" and torch.cuda.is_available() else args.device
-    device = "cpu" if device == "auto" else device
-    run = load_run(args.load_config, device=device)
+    run = load_run(args.load_config, device=resolve_device(args.device))
     pipeline = run.pipeline
     model = getattr(pipeline, "model", None)
     if model is None or not hasattr(model, "means"):

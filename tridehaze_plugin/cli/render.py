@@ -43,10 +43,11 @@ from rich.progress import (
 )
 
 from components.data.images import write_array_atomic, write_bytes_atomic, write_image_atomic
-from pipelines.camera_paths import make_path
-from pipelines.run_loader import load_run
-from pipelines.visualize import UNIT_RANGE, to_png, value_range
-from tridehaze_plugin.cli.common import check_output_folder, device_arg, run_cli
+from pipelines.engine.device import resolve_device
+from pipelines.engine.run_loader import load_run
+from pipelines.evaluation.camera_paths import make_path
+from pipelines.evaluation.visualize import UNIT_RANGE, to_png, value_range
+from tridehaze_plugin.cli.common import check_output_folder, run_cli
 from tridehaze_plugin.errors import ConfigError, UserError
 
 SIDE_BY_SIDE = "side-by-side"
@@ -84,7 +85,7 @@ class RenderArgs:
 
 
 def _device(name: str) -> str:
-    return device_arg(name, torch.cuda.is_available())
+    return str(resolve_device(name))
 
 
 def _check(args: RenderArgs, available: list[str]) -> list[str]:

@@ -18,6 +18,7 @@ from rich.console import Console
 from components.synth.gallery import GalleryConfig, make_gallery
 from components.synth.generate import SceneConfig, generate_scene
 from components.synth.haze_existing import HazeConfig, haze_dataset
+from pipelines.evaluation.run_depth import run_depths
 from tridehaze_plugin.cli.common import run_cli
 
 DESCRIPTION = "Hazy data with exact ground truth: procedural scenes, haze on existing datasets, a gallery."
@@ -42,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{t['total']:.1f} s (clean {t['clean_render']:.1f} s, haze {t['haze_march']:.1f} s)"
         )
     elif isinstance(cmd, HazeConfig):
-        meta = haze_dataset(cmd)
+        meta = haze_dataset(cmd, run_depths)
         console.print(
             f"wrote {cmd.output_dir}: {len(meta['per_view_mean_transmittance'])} views, beta {meta['beta']:.4g} "
             f"/unit, median T {meta['median_transmittance']:.3f}, mean T {meta['mean_transmittance']:.3f}, "

@@ -14,9 +14,10 @@ from pathlib import Path
 import tyro
 
 from components.synth import demo_scene_path
-from pipelines.config import TrainerConfig
-from pipelines.run_config import load_config
-from pipelines.trainer import Trainer
+from pipelines.engine.config import TrainerConfig
+from pipelines.engine.run_config import load_config
+from pipelines.engine.trainer import Trainer
+from pipelines.viewer import TrainingViewer
 from tridehaze_plugin.cli.common import check_output_folder, run_cli
 from tridehaze_plugin.config import validate
 from tridehaze_plugin.errors import ConfigError
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> None:
     if cfg.dataset.data is None:
         cfg.dataset.data = demo_scene_path(cfg.dataset.cache_dir)
         print(f"no --data given: training on the built-in demo scene ({cfg.dataset.data})")
-    Trainer(cfg, resume=resume).train()
+    Trainer(cfg, resume=resume, live_view=TrainingViewer()).train()
 
 
 def entrypoint() -> None:

@@ -15,8 +15,9 @@ from typing import Annotated
 
 import tyro
 
-from pipelines.config import ViewerConfig
-from pipelines.run_loader import load_run
+from pipelines.engine.config import ViewerConfig
+from pipelines.engine.device import check_device_name, resolve_device
+from pipelines.engine.run_loader import load_run
 from tridehaze_plugin.cli.common import run_cli
 from tridehaze_plugin.errors import ConfigError
 
@@ -48,13 +49,11 @@ def main(argv: list[str] | None = None) -> None:
     args.viewer.check_values(prefix="--")
     if not args.load_config.is_file():
         raise ConfigError("no such config file", where=str(args.load_config), fix="pass RUN/config.yml")
-    if args.device not in ("auto", "cpu") and not args.device.startswith("cuda"):
-        raise ConfigError(f"--device must be auto, cpu, cuda or cuda:N, got {args.device!r}")
+    check_device_name(args.device)
     if args.threads is not None and args.threads < 1:
         raise ConfigError(f"--threads must be >= 1, got {args.threads}")
     import torch
 
-    from pipelines.trainer import resolve_device
     from pipelines.viewer.server import Viewer
 
     if args.threads is not None:

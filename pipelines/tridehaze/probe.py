@@ -44,7 +44,7 @@ import torch
 
 from components.losses.dcp import DCPResult, estimate_dcp
 from components.losses.depth_priors import in_image, project_points
-from pipelines.datamanager import DataManager
+from pipelines.engine.datamanager import DataManager
 
 CLEAR_OPTICAL_DEPTH = 0.1
 """The pair fit calls a capture clear when the upper end of its bootstrap interval of the optical

@@ -1,6 +1,6 @@
 """The training engine: run folder, optimisation loop, logging, checkpoints, final evaluation.
 
-It knows only the :class:`~pipelines.base.Pipeline` contract, never a concrete model.
+It knows only the :class:`~pipelines.engine.contract.Pipeline` contract, never a concrete model.
 """
 
 from __future__ import annotations
@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import random
 import time
 from collections.abc import Callable
@@ -23,15 +22,16 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from components.data.loader import load_scene
-from pipelines.base import Pipeline, StepResult
-from pipelines.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
-from pipelines.config import TrainerConfig
-from pipelines.datamanager import DataManager
-from pipelines.early_stop import EarlyStopper, heldout_l1
-from pipelines.evaluate import evaluate_split
-from pipelines.optimizers import Optimizers
-from pipelines.run_config import save_config, write_text_atomic
-from pipelines.viewer import check_port_free, start_training_viewer
+from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
+from pipelines.engine.config import TrainerConfig
+from pipelines.engine.contract import Pipeline, StepResult
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.device import resolve_device
+from pipelines.engine.early_stop import EarlyStopper, heldout_l1
+from pipelines.engine.evaluate import evaluate_split
+from pipelines.engine.live_view import LiveView, LiveViewProvider
+from pipelines.engine.optimizers import Optimizers
+from pipelines.engine.run_config import save_config, write_text_atomic
 from tridehaze_plugin.errors import ConfigError, UserError
 
 
@@ -41,14 +41,6 @@ class TrainResult:
     steps: int
     seconds: float
     metrics: dict[str, Any]
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"--device {name} was asked for but CUDA is not available", fix="use --device cpu")
-    return torch.device(name)
 
 
 def seed_everything(seed: int) -> None:
@@ -104,10 +96,15 @@ class Trainer:
 
     ``resume``: an existing run folder to continue from its newest checkpoint (same optimizer
     state, stage and RNG state; the view order is a function of (seed, step) alone).
+    ``live_view``: what shows the run while it trains (td-train passes the browser viewer).
     """
 
     def __init__(
-        self, config: TrainerConfig, console: Console | None = None, resume: Path | None = None
+        self,
+        config: TrainerConfig,
+        console: Console | None = None,
+        resume: Path | None = None,
+        live_view: LiveViewProvider | None = None,
     ) -> None:
         self.config = config
         # soft_wrap: paths and metric lines stay on one line in logs and pipes
@@ -116,14 +113,15 @@ class Trainer:
         self.start_step = 0
         self.bad_steps = 0
         self.skipped_steps = 0
-        self.viewer = None
+        self.live_view = live_view
+        self.viewer: LiveView | None = None
         """The live viewer (``--vis``): it renders under ``viewer.lock`` and sees every step via
         ``viewer.update``, which blocks while paused from the browser."""
 
     def setup(self) -> None:
         cfg = self.config
-        if cfg.vis == "viewer":  # a port in use fails now, not after loading data and making a run folder
-            check_port_free(cfg.viewer.host, cfg.viewer.port)
+        if self.live_view is not None:
+            self.live_view.preflight(cfg)
         if cfg.threads is not None:
             torch.set_num_threads(cfg.threads)
         self.device = resolve_device(cfg.device)
@@ -162,7 +160,8 @@ class Trainer:
         self.console.print(f"run folder: {self.run_dir}")
         if self.start_step:
             self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
-        self.viewer = start_training_viewer(cfg, self.pipeline, self.datamanager, self.console)
+        if self.live_view is not None:
+            self.viewer = self.live_view.start(cfg, self.pipeline, self.datamanager, self.console)
 
     def _restore(self) -> None:
         """Load the newest checkpoint of the run being resumed into the freshly built pipeline."""
@@ -203,80 +202,29 @@ class Trainer:
                 self.viewer.close()
 
     def _train(self) -> TrainResult:
-        cfg, pipe, opt = self.config, self.pipeline, self.optimizers
-        view = self.viewer
-        lock = view.lock if view is not None else contextlib.nullcontext()
+        cfg = self.config
         log_path = self.run_dir / "logs" / "metrics.jsonl"
         log_path.parent.mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
-        its = 0.0
-        interactive = self.console.is_terminal
-        progress = Progress(
-            TextColumn("[bold]train[/]"),
-            BarColumn(),
-            TextColumn("step {task.completed}/{task.total}"),
-            TextColumn("loss {task.fields[loss]:.4f}"),
-            TextColumn("PSNR {task.fields[psnr]:.2f}"),
-            TextColumn("{task.fields[its]:.2f} it/s"),
-            TimeRemainingColumn(),
-            console=self.console,
-            disable=not interactive,
-        )
-        metrics: dict[str, float] = {}
+        self._lock = self.viewer.lock if self.viewer is not None else contextlib.nullcontext()
+        self._its = 0.0
+        self._metrics: dict[str, float] = {}
+        self._start = time.perf_counter()
         done = self.start_step
+        progress = self._progress_bar()
         with progress, log_path.open("a", encoding="utf-8") as log:
             task = progress.add_task(
                 "train", total=cfg.max_steps, completed=self.start_step, loss=math.nan, psnr=math.nan, its=0.0
             )
             try:
                 for step in range(self.start_step, cfg.max_steps):
-                    t0 = time.perf_counter()
-                    with lock:
-                        result, ok = optimization_step(pipe, opt, step, accept=self._finite)
-                    if not ok:
-                        self._skip_bad_step(step)
-                        done = step + 1
-                        progress.update(task, advance=1)
-                        if done == cfg.max_steps:
-                            self.save(done)
-                        continue
-                    self.bad_steps = 0
-                    self._log_decisions(step + 1)
-                    dt = time.perf_counter() - t0
-                    its = 1.0 / dt if its == 0 else 0.9 * its + 0.1 / dt
-                    metrics = {"loss": float(result.loss.detach()), **result.metrics}
-                    progress.update(
-                        task, advance=1, loss=metrics["loss"], psnr=metrics.get("psnr", math.nan), its=its
-                    )
+                    ok = self._step(step)
                     done = step + 1
-                    if view is not None:
-                        view.update(done, {**metrics, "its": its, **pipe.stats()})
-                    if done % cfg.steps_per_log == 0 or done == cfg.max_steps:
-                        row = {
-                            "step": done,
-                            "time": time.perf_counter() - start,
-                            "its": its,
-                            **metrics,
-                            **pipe.stats(),
-                        }
-                        log.write(json.dumps(row) + "\n")
-                        log.flush()
-                        if not interactive and (
-                            done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps
-                        ):
-                            self.console.print(
-                                f"step {done}/{cfg.max_steps}  loss {metrics['loss']:.4f}  "
-                                f"PSNR {metrics.get('psnr', math.nan):.2f}  {its:.2f} it/s"
-                            )
-                    if self.stopper is not None and self.stopper.due(done) and done < cfg.max_steps:
-                        with lock:
-                            held = heldout_l1(pipe, self.datamanager, self.stopper.views)
-                        log.write(json.dumps({"step": done, "heldout_l1": held}) + "\n")
-                        if self.stopper.update(done, held):
-                            self._log_decisions(done, self.stopper.decisions)
-                            self.save(done)
-                            break
-                    if done % cfg.steps_per_save == 0 or done == cfg.max_steps:
+                    progress.update(task, advance=1, **(self._bar_fields() if ok else {}))
+                    if ok:
+                        self._record(done, log)
+                    if ok and self._stop_early(done, log):
+                        break
+                    if done == cfg.max_steps or (ok and done % cfg.steps_per_save == 0):
                         self.save(done)
             except KeyboardInterrupt:
                 progress.stop()
@@ -286,16 +234,90 @@ class Trainer:
                     f"continue with: td-train --resume {self.run_dir}"
                 )
                 raise
-        seconds = time.perf_counter() - start
-        final: dict[str, Any] = {"train_seconds": seconds, "steps": done, **pipe.stats()}
+        return self._finish(done)
+
+    def _progress_bar(self) -> Progress:
+        return Progress(
+            TextColumn("[bold]train[/]"),
+            BarColumn(),
+            TextColumn("step {task.completed}/{task.total}"),
+            TextColumn("loss {task.fields[loss]:.4f}"),
+            TextColumn("PSNR {task.fields[psnr]:.2f}"),
+            TextColumn("{task.fields[its]:.2f} it/s"),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not self.console.is_terminal,
+        )
+
+    def _step(self, step: int) -> bool:
+        """One optimisation step under the viewer's lock; False when it was skipped (non-finite)."""
+        t0 = time.perf_counter()
+        with self._lock:
+            result, ok = optimization_step(self.pipeline, self.optimizers, step, accept=self._finite)
+        if not ok:
+            self._skip_bad_step(step)
+            return False
+        self.bad_steps = 0
+        self._log_decisions(step + 1)
+        dt = time.perf_counter() - t0
+        self._its = 1.0 / dt if self._its == 0 else 0.9 * self._its + 0.1 / dt
+        self._metrics = {"loss": float(result.loss.detach()), **result.metrics}
+        return True
+
+    def _bar_fields(self) -> dict[str, float]:
+        return {"loss": self._metrics["loss"], "psnr": self._metrics.get("psnr", math.nan), "its": self._its}
+
+    def _record(self, done: int, log) -> None:  # noqa: ANN001 - an open text file
+        """Show the step in the viewer; every ``steps_per_log`` steps, a metrics row (and a line when
+        the console is not a terminal, every tenth of the run)."""
+        cfg, stats = self.config, self.pipeline.stats()
+        if self.viewer is not None:
+            self.viewer.update(done, {**self._metrics, "its": self._its, **stats})
+        if done % cfg.steps_per_log != 0 and done != cfg.max_steps:
+            return
+        row = {
+            "step": done,
+            "time": time.perf_counter() - self._start,
+            "its": self._its,
+            **self._metrics,
+            **stats,
+        }
+        log.write(json.dumps(row) + "\n")
+        log.flush()
+        if not self.console.is_terminal and (
+            done % max(cfg.max_steps // 10, 1) == 0 or done == cfg.max_steps
+        ):
+            self.console.print(
+                f"step {done}/{cfg.max_steps}  loss {self._metrics['loss']:.4f}  "
+                f"PSNR {self._metrics.get('psnr', math.nan):.2f}  {self._its:.2f} it/s"
+            )
+
+    def _stop_early(self, done: int, log) -> bool:  # noqa: ANN001 - an open text file
+        """Held-out loss check when due; True (after a checkpoint) when it has plateaued."""
+        if self.stopper is None or not self.stopper.due(done) or done >= self.config.max_steps:
+            return False
+        with self._lock:
+            held = heldout_l1(self.pipeline, self.datamanager, self.stopper.views)
+        log.write(json.dumps({"step": done, "heldout_l1": held}) + "\n")
+        if not self.stopper.update(done, held):
+            return False
+        self._log_decisions(done, self.stopper.decisions)
+        self.save(done)
+        return True
+
+    def _finish(self, done: int) -> TrainResult:
+        """Final metrics (and the test split's evaluation) into eval/metrics.json and the console."""
+        cfg = self.config
+        seconds = time.perf_counter() - self._start
+        final: dict[str, Any] = {"train_seconds": seconds, "steps": done, **self.pipeline.stats()}
         if done < cfg.max_steps:
             final["stopped_early_at"] = done
         if self.skipped_steps:
             final["skipped_nonfinite_steps"] = self.skipped_steps
-        final.update({f"train_{k}": v for k, v in metrics.items()})
+        final.update({f"train_{k}": v for k, v in self._metrics.items()})
         if cfg.eval_at_end and self.datamanager.test_indices:
-            with lock:
-                final.update(evaluate_split(pipe, self.datamanager, "test"))
+            with self._lock:
+                final.update(evaluate_split(self.pipeline, self.datamanager, "test"))
         write_text_atomic(self.run_dir / "eval" / "metrics.json", json.dumps(final, indent=2))
         self._print_summary(final)
         return TrainResult(self.run_dir, done, seconds, final)
@@ -351,7 +373,3 @@ class Trainer:
         parts = [f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()]
         self.console.print("[bold green]done[/]: " + ", ".join(parts))
         self.console.print(f"outputs: {self.run_dir}")
-
-
-def default_threads() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -12,11 +12,11 @@ from pathlib import Path
 import torch
 
 from components.data.loader import load_scene
-from pipelines.base import Pipeline
-from pipelines.checkpoint import latest_checkpoint, load_checkpoint
-from pipelines.config import TrainerConfig
-from pipelines.datamanager import DataManager
-from pipelines.run_config import load_config
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.config import TrainerConfig
+from pipelines.engine.contract import Pipeline
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.run_config import load_config
 from tridehaze_plugin.errors import UserError
 
 

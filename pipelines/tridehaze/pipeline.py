@@ -29,9 +29,10 @@ from components.medium.compositing import (
     homogeneous_along_rays,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
-from pipelines.base import Decision, Pipeline, StepResult
-from pipelines.datamanager import DataManager
-from pipelines.haze_priors import (
+from pipelines.engine.contract import Decision, Pipeline, StepResult
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.metrics import psnr
+from pipelines.tridehaze.priors import (
     ViewPrior,
     build_view_priors,
     dcp_per_view,
@@ -41,9 +42,8 @@ from pipelines.haze_priors import (
     resolve_depth_prior,
     scaled_step,
 )
-from pipelines.haze_probe import probe_haze
-from pipelines.metrics import psnr
-from pipelines.warmup_depth import warmup_depths
+from pipelines.tridehaze.probe import probe_haze
+from pipelines.tridehaze.warmup import warmup_depths
 from tridehaze_plugin.config import RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY

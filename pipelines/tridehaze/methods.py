@@ -7,42 +7,14 @@ Third-party packages register theirs via the ``tridehaze.methods`` entry-point g
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 from components.medium.base import MediumConfig
-from pipelines.config import TrainerConfig
-from tridehaze_plugin.registry import register
+from pipelines.engine.config import TrainerConfig
+from tridehaze_plugin.registry import method
 
 MEASURED = "Measured on three generated 128x96 hazy scenes (td-bench tradeoff, 2 shared CPU cores): "
 """Prefix of the measured figures in the preset descriptions (wall time of training + evaluation)."""
-
-
-@dataclass(frozen=True)
-class MethodSpec:
-    """A registered method: its CLI name, a one-paragraph description and a config factory."""
-
-    name: str
-    description: str
-    config_factory: Callable[[], TrainerConfig]
-
-    def make_config(self) -> TrainerConfig:
-        cfg = self.config_factory()
-        if cfg.method_name != self.name:
-            cfg.method_name = self.name
-        return cfg
-
-
-def method(
-    name: str, description: str
-) -> Callable[[Callable[[], TrainerConfig]], Callable[[], TrainerConfig]]:
-    """Decorator registering a config factory as the method ``name`` (the factory is returned as is)."""
-
-    def wrap(factory: Callable[[], TrainerConfig]) -> Callable[[], TrainerConfig]:
-        register("method", name, MethodSpec(name=name, description=description, config_factory=factory))
-        return factory
-
-    return wrap
 
 
 @method(
@@ -127,8 +99,8 @@ def tri_dehaze_constant() -> TrainerConfig:
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:
-    """The ``fast`` point of the measured speed-accuracy front (pipelines/tradeoff.py)."""
-    from pipelines.tradeoff import preset_config
+    """The ``fast`` point of the measured speed-accuracy front (pipelines/experiments/tradeoff.py)."""
+    from pipelines.experiments.tradeoff import preset_config
 
     return preset_config("fast", "tri-dehaze-fast")
 
@@ -144,7 +116,7 @@ def tri_dehaze_fast() -> TrainerConfig:
     ),
 )
 def tri_dehaze_quality() -> TrainerConfig:
-    """The ``quality`` point of the measured speed-accuracy front (pipelines/tradeoff.py)."""
-    from pipelines.tradeoff import preset_config
+    """The ``quality`` point of the measured speed-accuracy front (pipelines/experiments/tradeoff.py)."""
+    from pipelines.experiments.tradeoff import preset_config
 
     return preset_config("quality", "tri-dehaze-quality")

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipelines.ablation import Variant
-from pipelines.checkpoint import latest_checkpoint
-from pipelines.run_config import write_text_atomic
+from pipelines.engine.checkpoint import latest_checkpoint
+from pipelines.engine.run_config import write_text_atomic
+from pipelines.experiments.ablation import Variant
 
 
 @dataclass(frozen=True)

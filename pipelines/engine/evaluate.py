@@ -29,9 +29,9 @@ import torch
 from torch import Tensor
 
 from components.data.images import read_depth
-from pipelines.base import Pipeline
-from pipelines.datamanager import DataManager
-from pipelines.metrics import psnr, ssim, ssim_map
+from pipelines.engine.contract import Pipeline
+from pipelines.engine.datamanager import DataManager
+from pipelines.engine.metrics import psnr, ssim, ssim_map
 
 BINS: tuple[tuple[str, float, float], ...] = (("high", 0.7, 2.0), ("mid", 0.4, 0.7), ("low", -1.0, 0.4))
 """(name, lower bound exclusive, upper bound inclusive) on the transmittance T."""

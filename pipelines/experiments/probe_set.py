@@ -12,7 +12,7 @@ Four families, each with its own known class (``none`` / ``homogeneous`` / ``var
 * every scene once more with a degraded seed cloud (:func:`degrade_points`): as sparse and noisy as
   SfM on hazy photos gives, in the same split as its scene.
 
-Nothing here is tuned to one scene: the thresholds in ``pipelines/haze_probe.py`` were set on the
+Nothing here is tuned to one scene: the thresholds in ``pipelines/tridehaze/probe.py`` were set on the
 calibration part, and the held-back part is reported on its own (``td-bench probe``).
 """
 
@@ -28,7 +28,8 @@ import torch
 
 from components.synth.generate import SceneConfig, generate_scene
 from components.synth.haze_existing import HazeConfig, haze_dataset
-from pipelines.ablation import Variant
+from pipelines.evaluation.run_depth import run_depths
+from pipelines.experiments.ablation import Variant
 
 LAYOUTS = ("courtyard", "street", "room", "field")
 SYNTH_TRUTH = {"none": "none", "uniform": "homogeneous", "homogeneous": "homogeneous"}
@@ -145,7 +146,7 @@ def build(root: Path, real_root: Path | None, log=print) -> None:
             haze_dataset(HazeConfig(
                 data=source, output_dir=out, downscale=REAL_DOWNSCALE, depth_from_run=config,
                 beta=0.0 if t is None else None, median_transmittance=t, heterogeneous=h, airlight=airlight, seed=3,
-            ))  # fmt: skip
+            ), run_depths)  # fmt: skip
             log(f"hazed {out.name}")
 
 

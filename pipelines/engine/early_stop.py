@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import torch
 
-from pipelines.base import Pipeline
-from pipelines.datamanager import DataManager
+from pipelines.engine.contract import Pipeline
+from pipelines.engine.datamanager import DataManager
 from tridehaze_plugin.errors import ConfigError
 
 

@@ -13,7 +13,7 @@ from torch import Tensor
 from components.gaussians.model import GaussianModelConfig
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.rasterizers.base import Rasterizer
-from pipelines.datamanager import DataManager
+from pipelines.engine.datamanager import DataManager
 
 
 def warmup_depths(

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from pipelines.ablation import FAMILIES, VARIANTS, paper_claims
+from pipelines.experiments.ablation import FAMILIES, VARIANTS, paper_claims
 
 CSV_FIELDS = (
     "scene", "variant", "method", "status", "restoration_psnr", "restoration_ssim", "restoration_lpips",

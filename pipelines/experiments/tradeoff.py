@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from pipelines.ablation import Variant
+from pipelines.experiments.ablation import Variant
 
 BASE_METHOD = "tri-dehaze"
 BASE_STEPS = 1500
@@ -69,7 +69,7 @@ def preset_config(combo: str, method_name: str):  # -> TrainerConfig (imported l
     ``tri-dehaze-fast`` / ``-quality`` are exactly what ``td-bench tradeoff`` measured."""
     import tyro
 
-    from pipelines.config import TrainerConfig
+    from pipelines.engine.config import TrainerConfig
     from tridehaze_plugin.registry import REGISTRY
 
     base = REGISTRY.get("method", BASE_METHOD).make_config()

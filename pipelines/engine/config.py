@@ -9,9 +9,9 @@ from typing import Annotated, Literal
 import tyro
 
 from components.data.config import DataConfig
-from pipelines.early_stop import EarlyStopConfig
-from pipelines.gaussian_pipeline import PipelineConfig
-from pipelines.optimizers import OptimizerConfig
+from pipelines.engine.early_stop import EarlyStopConfig
+from pipelines.engine.optimizers import OptimizerConfig
+from pipelines.tridehaze.pipeline import PipelineConfig
 from tridehaze_plugin.errors import ConfigError
 
 

@@ -1,6 +1,6 @@
 """``td-bench probe``: the haze probe on its scene set, its confusion tables and what mistakes cost.
 
-The probe runs on every scene of :mod:`pipelines.probe_set` (each also with a degraded seed cloud);
+The probe runs on every scene of :mod:`pipelines.experiments.probe_set` (each also with a degraded seed cloud);
 tables are split by calibration / held-out part. With restoration results (the runner's JSON per
 scene and variant) it adds, per hazy scene, the fast preset against ``tri-dehaze``, and per wrong
 verdict its restoration cost: the fast preset with the verdict's medium minus with the right one.
@@ -17,10 +17,10 @@ import torch
 
 from components.data.config import DataConfig
 from components.data.loader import load_scene
-from pipelines.ablation_table import fmt_number, nested
-from pipelines.datamanager import DataManager
-from pipelines.haze_probe import probe_haze
-from pipelines.probe_set import ProbeScene, degrade_points
+from pipelines.engine.datamanager import DataManager
+from pipelines.experiments.probe_set import ProbeScene, degrade_points
+from pipelines.experiments.tables import fmt_number, nested
+from pipelines.tridehaze.probe import probe_haze
 
 CLASSES = ("none", "homogeneous", "varying")
 VERDICTS = ("none", "homogeneous", "varying", "unsure")

@@ -23,7 +23,7 @@ from components.losses.depth_priors import (
     in_image,
     project_points,
 )
-from pipelines.datamanager import DataManager
+from pipelines.engine.datamanager import DataManager
 
 DEPTH_PRIORS = ("auto", "files", "dcp", "sfm", "warmup", "none")
 

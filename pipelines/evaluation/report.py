@@ -7,8 +7,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from pipelines.evaluate import BINS, ViewRender
-from pipelines.visualize import to_png
+from pipelines.engine.evaluate import BINS, ViewRender
+from pipelines.evaluation.visualize import to_png
 
 PANEL_LABEL_HEIGHT = 16
 """Pixels of the caption band above each panel."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from components.data.images import write_bytes_atomic
-from pipelines.config import TrainerConfig
+from pipelines.engine.config import TrainerConfig
 from tridehaze_plugin import __version__
 from tridehaze_plugin.config import dump_yaml, merge_dict, read_yaml_mapping, validate
 from tridehaze_plugin.errors import ConfigError

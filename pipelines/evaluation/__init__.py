@@ -1,0 +1,1 @@
+"""Rendering and scoring trained runs: test-view metrics, reports, figures and camera paths."""

@@ -1,0 +1,1 @@
+"""Experiment drivers above single runs: ablations, the speed-accuracy trade-off, the probe bench."""
