@@ -9,9 +9,9 @@ from typing import Annotated, Literal
 import tyro
 
 from components.data.config import DataConfig
+from pipelines.engine.contract import PipelineConfig
 from pipelines.engine.early_stop import EarlyStopConfig
 from pipelines.engine.optimizers import OptimizerConfig
-from pipelines.tridehaze.pipeline import PipelineConfig
 from tridehaze_plugin.errors import ConfigError
 
 

@@ -9,11 +9,34 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor, nn
 
 from components.data.cameras import Cameras
+from tridehaze_plugin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from pipelines.engine.datamanager import DataManager
+
+
+@dataclass
+class PipelineConfig:
+    """Base of every pipeline's config: the trainer builds its pipeline with :meth:`setup` and
+    checks values with :meth:`check_values`, knowing nothing else of it. Methods fill
+    ``TrainerConfig.pipeline`` with a subclass (the Tri-DehazeGS one is ``GaussianPipelineConfig``)."""
+
+    def check_values(self) -> None:
+        """Reject values that cannot work, naming the flag (called right after parsing)."""
+
+    def setup(
+        self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000, training: bool = True
+    ) -> Pipeline:
+        """Build the pipeline; ``training=False`` (reloading a run to render it) may skip training-only work."""
+        raise ConfigError(
+            "the config names no pipeline", fix="start from a method preset: td-train METHOD (see td-info)"
+        )
 
 
 @dataclass

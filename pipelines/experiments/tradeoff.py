@@ -7,10 +7,13 @@ the Pareto front is then taken over all of them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from pipelines.engine.config import TrainerConfig
 from pipelines.experiments.ablation import Variant
+from pipelines.tridehaze.methods import tri_dehaze_fast, tri_dehaze_quality
 
 BASE_METHOD = "tri-dehaze"
 BASE_STEPS = 1500
@@ -41,12 +44,9 @@ KNOBS: tuple[Knob, ...] = (
 )
 """Knobs of issue 8 with their values; the first value of each is the base (tri-dehaze's default)."""
 
-COMBOS: dict[str, dict[str, str]] = {
-    "fast": {"steps": "1000", "sh-degree": "1", "samples": "8", "medium-res": "32", "coarse-rays": "300",
-             "max-gaussians": "20000", "growth": "plateau", "medium": "auto"},
-    "quality": {"steps": "3000", "grow-grad2d": "0.0004", "medium-res": "128", "coarse-rays": "4800"},
-}  # fmt: skip
-"""Combined settings (preset candidates) measured next to the one-knob sweeps."""
+COMBOS: dict[str, Callable[[], TrainerConfig]] = {"fast": tri_dehaze_fast, "quality": tri_dehaze_quality}
+"""Combined settings measured next to the one-knob sweeps: the registered speed presets themselves,
+so a preset is always exactly what the bench measured."""
 
 
 def knob_flags(settings: dict[str, str]) -> tuple[list[str], int | None]:
@@ -62,23 +62,6 @@ def knob_flags(settings: dict[str, str]) -> tuple[list[str], int | None]:
         else:
             flags += [knob.flag, value]
     return flags, steps
-
-
-def preset_config(combo: str, method_name: str):  # -> TrainerConfig (imported late: no cycle)
-    """The tri-dehaze config with the measured combination ``combo`` applied: the presets
-    ``tri-dehaze-fast`` / ``-quality`` are exactly what ``td-bench tradeoff`` measured."""
-    import tyro
-
-    from pipelines.engine.config import TrainerConfig
-    from tridehaze_plugin.registry import REGISTRY
-
-    base = REGISTRY.get("method", BASE_METHOD).make_config()
-    flags, steps = knob_flags(COMBOS[combo])
-    cfg = tyro.cli(TrainerConfig, args=flags, default=base)
-    cfg.method_name = method_name
-    if steps is not None:
-        cfg.max_steps = steps
-    return cfg
 
 
 def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
@@ -127,7 +110,9 @@ def grid(
     for name in chosen_combos:
         if name not in COMBOS:
             raise ValueError(f"unknown combination {name!r}; use one of {', '.join(COMBOS)}")
-        variants.append(_variant(name, COMBOS[name], base_steps))
+        preset = COMBOS[name]()
+        steps = max(1, round(preset.max_steps * base_steps / BASE_STEPS))
+        variants.append(Variant(name, preset.method_name, label=name, max_steps=steps))
     return variants
 
 

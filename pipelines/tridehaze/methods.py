@@ -11,10 +11,11 @@ from dataclasses import replace
 
 from components.medium.base import MediumConfig
 from pipelines.engine.config import TrainerConfig
+from pipelines.tridehaze.pipeline import GaussianPipelineConfig
 from tridehaze_plugin.registry import method
 
-MEASURED = "Measured on three generated 128x96 hazy scenes (td-bench tradeoff, 2 shared CPU cores): "
-"""Prefix of the measured figures in the preset descriptions (wall time of training + evaluation)."""
+MEASURED = " Time and quality against tri-dehaze: docs/results/tradeoff.md (td-bench tradeoff)."
+"""Where a speed preset's measured cost and benefit live (figures in help texts would go stale)."""
 
 
 @method(
@@ -26,7 +27,7 @@ MEASURED = "Measured on three generated 128x96 hazy scenes (td-bench tradeoff, 2
 )
 def vanilla_gs() -> TrainerConfig:
     """Haze-agnostic 3D Gaussian splatting: the baseline every dehazing method is compared with."""
-    return TrainerConfig(method_name="vanilla-gs")
+    return TrainerConfig(method_name="vanilla-gs", pipeline=GaussianPipelineConfig())
 
 
 @method(
@@ -35,10 +36,7 @@ def vanilla_gs() -> TrainerConfig:
         "Tri-DehazeGS: clean 3D Gaussians and a view-shared tri-plane medium (extinction + "
         "direction-dependent light), ray-marched and composited I = J*T + S; Stage I fits both "
         "with depth and dark-channel priors, Stage II freezes the medium and compensates the "
-        "clean branch's gradient by 1/T (MD-TGC): the paper's settings. "
-        + MEASURED
-        + "3000 steps 993 s, restoration PSNR 19.28 dB / SSIM 0.668 / LPIPS 0.207 "
-        "(--max-steps 1500: 325 s, 19.12 dB)."
+        "clean branch's gradient by 1/T (MD-TGC): the paper's settings."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -93,30 +91,38 @@ def tri_dehaze_constant() -> TrainerConfig:
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
         "tri-plane, at most 20k Gaussians with plateau growth, and the medium chosen by the haze "
         "probe (none only for a capture it can show to be clear, else the tri-plane; verdict and "
-        "confidence in logs/decisions.jsonl). "
-        + MEASURED
-        + "168 s (77 s of CPU), 18.78 dB / SSIM 0.600 / LPIPS 0.351."
+        "confidence in logs/decisions.jsonl)." + MEASURED
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:
-    """The ``fast`` point of the measured speed-accuracy front (pipelines/experiments/tradeoff.py)."""
-    from pipelines.experiments.tradeoff import preset_config
-
-    return preset_config("fast", "tri-dehaze-fast")
+    """The ``fast`` point of the measured speed-accuracy front (``td-bench tradeoff`` measures it)."""
+    base = tri_dehaze()
+    p = base.pipeline
+    pipeline = replace(
+        p,
+        model=replace(p.model, sh_degree=1),
+        densify=replace(p.densify, max_gaussians=20_000, growth="plateau"),
+        medium=replace(p.medium, backend="auto", resolution=32),
+        composite=replace(p.composite, num_samples=8, coarse_rays=300),
+    )
+    return replace(base, method_name="tri-dehaze-fast", max_steps=1000, pipeline=pipeline)
 
 
 @method(
     "tri-dehaze-quality",
     (
         "Tri-DehazeGS for the best clean scene: 3000 steps with slower densification (grow-grad2d "
-        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step. "
-        + MEASURED
-        + "796 s, 19.33 dB / SSIM 0.676 / LPIPS 0.216 (2.5x fewer Gaussians than tri-dehaze's "
-        "3000 steps)."
+        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step." + MEASURED
     ),
 )
 def tri_dehaze_quality() -> TrainerConfig:
-    """The ``quality`` point of the measured speed-accuracy front (pipelines/experiments/tradeoff.py)."""
-    from pipelines.experiments.tradeoff import preset_config
-
-    return preset_config("quality", "tri-dehaze-quality")
+    """The ``quality`` point of the measured speed-accuracy front (``td-bench tradeoff`` measures it)."""
+    base = tri_dehaze()
+    p = base.pipeline
+    pipeline = replace(
+        p,
+        densify=replace(p.densify, grow_grad2d=4e-4),
+        medium=replace(p.medium, resolution=128),
+        composite=replace(p.composite, coarse_rays=4800),
+    )
+    return replace(base, method_name="tri-dehaze-quality", max_steps=3000, pipeline=pipeline)

@@ -29,7 +29,7 @@ from components.medium.compositing import (
     homogeneous_along_rays,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
-from pipelines.engine.contract import Decision, Pipeline, StepResult
+from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.metrics import psnr
 from pipelines.tridehaze.priors import (
@@ -50,7 +50,7 @@ from tridehaze_plugin.registry import REGISTRY
 
 
 @dataclass
-class PipelineConfig:
+class GaussianPipelineConfig(PipelineConfig):
     """Which components make up the method, and how they are combined."""
 
     model: GaussianModelConfig = field(default_factory=GaussianModelConfig)
@@ -157,7 +157,7 @@ class GaussianPipeline(Pipeline):
 
     def __init__(
         self,
-        config: PipelineConfig,
+        config: GaussianPipelineConfig,
         datamanager: DataManager,
         seed: int = 0,
         max_steps: int = 30_000,
