@@ -253,6 +253,16 @@ class GaussianModel(nn.Module):
             self.replace_params(resized)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
+    def render_attribute(self, rasterizer: Rasterizer, cameras: Cameras, name: str) -> Tensor:
+        """Alpha-blend the per-Gaussian attribute ``name`` [N, D] like a colour, with the geometry of
+        :meth:`render` and a zero background: [C, H, W, D]."""
+        attr = self.attribute(name)  # [N, D]
+        return rasterizer.rasterize(
+            self.means, self.quats, self.scales, self.opacities, attr,
+            cameras.viewmats().to(attr), cameras.Ks().to(attr), int(cameras.width[0]), int(cameras.height[0]),
+            background=torch.zeros(attr.shape[-1], device=attr.device),
+        ).rgb  # fmt: skip
+
     def render(
         self,
         rasterizer: Rasterizer,

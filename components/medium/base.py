@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import torch
 from torch import Tensor, nn
@@ -22,6 +22,12 @@ from torch.nn import functional as F
 from components.gaussians.sh import eval_sh, num_sh_bases
 from tridehaze_plugin.config import ComponentConfig, RegistryChoice
 from tridehaze_plugin.registry import REGISTRY
+
+if TYPE_CHECKING:
+    from components.data.cameras import Cameras
+    from components.gaussians.model import GaussianModel
+    from components.medium.compositing import MediumCompositor, MediumRender
+    from components.rasterizers.base import Rasterizer
 
 
 @dataclass
@@ -129,14 +135,18 @@ class MediumConfig(ComponentConfig):
 
 
 class MediumField(nn.Module):
-    """Base of all medium fields. Subclasses set ``is_field`` and implement :meth:`forward`.
+    """Base of all medium fields. Subclasses implement :meth:`forward`; everything a pipeline may
+    ask of a medium is a hook declared here with the default a 3D field wants.
 
     ``is_field`` False means the medium is not a 3D field evaluated along rays (``none``, or
-    ``gaussian-bound`` which the compositor renders through the rasterizer instead).
+    ``gaussian-bound`` which renders through the rasterizer instead); ``has_medium`` False means
+    there is no medium at all (plain 3DGS); ``renders_with_gaussians`` True means the medium lives
+    on the scene's Gaussians (:meth:`attach`, :meth:`render_view`).
     """
 
     is_field: bool = True
     has_medium: bool = True
+    renders_with_gaussians: bool = False
 
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
         super().__init__()
@@ -162,6 +172,31 @@ class MediumField(nn.Module):
     @torch.no_grad()
     def initialize(self, beta: float, light: Tensor) -> None:  # noqa: B027 - optional
         """Set the field to a uniform extinction ``beta`` and light ``light`` [3] (data-driven init)."""
+
+    def attach(self, model: GaussianModel) -> None:  # noqa: B027 - optional hook
+        """Bind to the scene's Gaussians once they exist (a medium living on them adds its attribute)."""
+
+    def set_trainable(self, on: bool, model: GaussianModel) -> None:
+        """Freeze or unfreeze everything the medium owns (Stage II freezes it), wherever it lives."""
+        for p in self.parameters():
+            p.requires_grad_(on)
+
+    def render_view(
+        self,
+        compositor: MediumCompositor,
+        camera: Cameras,
+        depth: Tensor,
+        alpha: Tensor,
+        model: GaussianModel,
+        rasterizer: Rasterizer,
+    ) -> MediumRender:
+        """T and S of one view given the clean render's depth and alpha [H, W, 1]: by default the
+        compositor marches this field from the camera to the surface."""
+        return compositor(self, camera, depth, alpha)
+
+    def gaussian_attribute(self, model: GaussianModel) -> Tensor | None:
+        """The per-Gaussian medium values to export ([N, D]), for a medium living on the Gaussians."""
+        return None
 
 
 class MediumHeads(nn.Module):

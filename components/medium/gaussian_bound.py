@@ -15,8 +15,11 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from components.data.cameras import Cameras
 from components.gaussians.model import GaussianModel
 from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumSample
+from components.medium.compositing import MediumCompositor, MediumRender, homogeneous_along_rays
+from components.rasterizers.base import Rasterizer
 from tridehaze_plugin.registry import register
 
 ATTRIBUTE = "medium"
@@ -48,6 +51,28 @@ class GaussianBoundMedium(MediumField):
         """Give every Gaussian its medium attribute (cloned / pruned with it from then on)."""
         values = self._raw_init().to(model.means).expand(model.num_gaussians, 4).clone()
         model.add_attribute(ATTRIBUTE, values, self.config.lr)
+
+    def set_trainable(self, on: bool, model: GaussianModel) -> None:
+        super().set_trainable(on, model)
+        model.attribute(ATTRIBUTE).requires_grad_(on)
+
+    def gaussian_attribute(self, model: GaussianModel) -> Tensor:
+        return model.attribute(ATTRIBUTE)  # [N, 4]
+
+    def render_view(
+        self,
+        compositor: MediumCompositor,
+        camera: Cameras,
+        depth: Tensor,
+        alpha: Tensor,
+        model: GaussianModel,
+        rasterizer: Rasterizer,
+    ) -> MediumRender:
+        """The Gaussians' alpha-blended medium values per pixel, homogeneous along each pixel's ray."""
+        blended = model.render_attribute(rasterizer, camera, ATTRIBUTE)[0]  # [H, W, 4]
+        beta, light = self.pixel_medium(blended, alpha)
+        end = compositor.end_depth(depth, alpha, compositor.far_bound(self))
+        return homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         return {

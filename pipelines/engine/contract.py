@@ -18,6 +18,8 @@ from components.data.cameras import Cameras
 from tridehaze_plugin.errors import ConfigError
 
 if TYPE_CHECKING:
+    from components.gaussians.model import GaussianModel
+    from components.medium.base import MediumField
     from pipelines.engine.datamanager import DataManager
 
 
@@ -95,6 +97,14 @@ class Pipeline(nn.Module, ABC):
     def describe(self) -> str:
         """One line on how the pipeline was set up (e.g. data-driven initial values), or ''."""
         return ""
+
+    def scene_gaussians(self) -> GaussianModel | None:
+        """The clean scene's Gaussians, for export (None: the method has none)."""
+        return None
+
+    def medium_field(self) -> MediumField | None:
+        """The medium, for export (None: the method has none)."""
+        return None
 
     def pop_decisions(self) -> list[str | Decision]:
         """Choices the pipeline made on its own since the last call (a haze probe's verdict,

@@ -16,17 +16,16 @@ from torch import Tensor, nn
 
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
-from components.gaussians.model import GaussianModelConfig
+from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dcp_transmittance_loss
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
-from components.medium.base import FieldBounds, MediumConfig
+from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
     CompositeConfig,
     MediumCompositor,
     MediumRender,
     composite,
-    homogeneous_along_rays,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
@@ -211,8 +210,7 @@ class GaussianPipeline(Pipeline):
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent).to(
             device
         )
-        if getattr(self.medium, "renders_with_gaussians", False):
-            self.medium.attach(self.model)
+        self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
         self._photometric: Tensor | None = None
@@ -251,12 +249,6 @@ class GaussianPipeline(Pipeline):
     def _medium_trainable(self, step: int) -> bool:
         return self.stage_at(step) == 1 and step >= self.hold_steps
 
-    def _set_medium_trainable(self, on: bool) -> None:
-        for p in self.medium.parameters():
-            p.requires_grad_(on)
-        if "medium" in self.model.extra_lrs:  # gaussian-bound attributes live on the Gaussians
-            self.model.attribute("medium").requires_grad_(on)
-
     # ----------------------------------------------------------------------------- training
     def training_target(self, idx: int) -> Tensor:
         """The image view ``idx`` is fitted to: its input, or its dehazed version (``input_dehaze``)."""
@@ -268,7 +260,7 @@ class GaussianPipeline(Pipeline):
         cfg, dm = self.config, self.datamanager
         stage = self.stage_at(step)
         self.stage.fill_(stage)
-        self._set_medium_trainable(self._medium_trainable(step))
+        self.medium.set_trainable(self._medium_trainable(step), self.model)
         idx = dm.train_index(step)
         target = self.training_target(idx)  # [H, W, 3]
         bg = self.background
@@ -343,17 +335,7 @@ class GaussianPipeline(Pipeline):
         if not self.medium.has_medium:
             return None
         depth, alpha = out.depth[0], out.alpha[0]  # [H, W, 1]
-        if getattr(self.medium, "renders_with_gaussians", False):
-            attr = self.model.attribute("medium")  # [N, 4]
-            blended = self.rasterizer.rasterize(
-                self.model.means, self.model.quats, self.model.scales, self.model.opacities, attr,
-                camera.viewmats().to(attr), camera.Ks().to(attr), int(camera.width[0]), int(camera.height[0]),
-                background=torch.zeros(4, device=attr.device),
-            ).rgb[0]  # fmt: skip
-            beta, light = self.medium.pixel_medium(blended, alpha)
-            end = self.compositor.end_depth(depth, alpha, self.compositor.far_bound(self.medium))
-            return homogeneous_along_rays(beta, light, camera, end, self.config.composite.t_floor)
-        return self.compositor(self.medium, camera, depth, alpha)
+        return self.medium.render_view(self.compositor, camera, depth, alpha, self.model, self.rasterizer)
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:
@@ -398,6 +380,12 @@ class GaussianPipeline(Pipeline):
         if self.densifier.growth_stopped_at is not None:
             out["growth_stopped_at"] = self.densifier.growth_stopped_at
         return out
+
+    def scene_gaussians(self) -> GaussianModel:
+        return self.model
+
+    def medium_field(self) -> MediumField:
+        return self.medium
 
     def pop_decisions(self) -> list[str | Decision]:
         out = self._decisions + self.densifier.decisions

@@ -65,14 +65,14 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
     check_output_dir(args.output_dir, args.overwrite)
     run = load_run(args.load_config, device=resolve_device(args.device))
     pipeline = run.pipeline
-    model = getattr(pipeline, "model", None)
-    if model is None or not hasattr(model, "means"):
+    model = pipeline.scene_gaussians()
+    if model is None:
         raise UserError("this run's pipeline has no Gaussian model to export", where=str(args.load_config))
     transform = run.datamanager.scene.transform if args.frame == "original" else None
     splat = SplatData.from_model(model)
     if transform is not None:
         splat = to_original_frame(splat, transform)
-    medium = getattr(pipeline, "medium", None)
+    medium = pipeline.medium_field()
     summary: dict[str, Any] = {
         "run": str(run.run_dir.absolute()),
         "step": run.step,
@@ -84,13 +84,11 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
     with staged_output(args.output_dir, args.overwrite) as tmp:
         summary["ply_bytes"] = write_splat_ply(tmp / "splat.ply", splat)
         summary["medium"] = None
-        if medium is not None and getattr(medium, "has_medium", False):
-            bound = getattr(medium, "renders_with_gaussians", False)
-            if bound or getattr(medium, "is_field", True):
-                summary["medium"] = export_medium(
-                    medium, tmp, transform, args.medium_resolution, args.light_resolution,
-                    gaussian_attr=model.attribute("medium") if bound else None,
-                )  # fmt: skip
+        if medium is not None and medium.has_medium and (medium.is_field or medium.renders_with_gaussians):
+            summary["medium"] = export_medium(
+                medium, tmp, transform, args.medium_resolution, args.light_resolution,
+                gaussian_attr=medium.gaussian_attribute(model),
+            )  # fmt: skip
         summary["seconds"] = round(time.perf_counter() - t0, 3)
         write_json(tmp / "export.json", summary)
     out = args.output_dir
