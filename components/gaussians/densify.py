@@ -19,6 +19,7 @@ from torch import Tensor, nn
 from components.gaussians.model import GaussianModel, logit
 from components.rasterizers.base import RasterizeOutput
 from components.rasterizers.projection import quat_to_rotmat
+from tridehaze_plugin.errors import ConfigError
 
 
 @dataclass
@@ -52,6 +53,12 @@ class DensifyConfig:
     plateau_min_improvement: float = 0.02
     """For plateau growth: the relative decrease of the mean photometric loss over the last
     refine_every steps, against the window before, below which growth stops."""
+
+    def check_values(self, prefix: str = "--pipeline.densify.") -> None:
+        if not 0.0 <= self.plateau_min_improvement <= 1.0:
+            raise ConfigError(
+                f"{prefix}plateau-min-improvement must be in [0, 1], got {self.plateau_min_improvement}"
+            )
 
 
 class Densifier:

@@ -9,6 +9,7 @@ import kornia
 from torch import Tensor
 
 from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY, register
 
 
@@ -22,6 +23,10 @@ class ReconstructionLossConfig(ComponentConfig):
     """Weight of the (1 - SSIM) term; the L1 term gets (1 - lambda_ssim)."""
     ssim_window: int = 11
     """Gaussian window size of SSIM (odd)."""
+
+    def check_values(self, prefix: str = "--pipeline.loss.") -> None:
+        if not 0.0 <= self.lambda_ssim <= 1.0:
+            raise ConfigError(f"{prefix}lambda-ssim must be in [0, 1], got {self.lambda_ssim}")
 
     def setup(self, **kwargs) -> L1SSIMLoss:
         return REGISTRY.get("loss", self.backend)(self)

@@ -21,6 +21,7 @@ from torch.nn import functional as F
 
 from components.gaussians.sh import eval_sh, num_sh_bases
 from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
 if TYPE_CHECKING:
@@ -125,6 +126,10 @@ class MediumConfig(ComponentConfig):
     tv_weight: float = 0.0
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
 
+    def check_values(self, prefix: str = "--pipeline.medium.") -> None:
+        if self.light == "sh" and not 0 <= self.sh_degree <= 2:
+            raise ConfigError(f"{prefix}sh-degree must be 0, 1 or 2, got {self.sh_degree}")
+
     def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
         if self.backend == "auto":
             raise ValueError("medium backend 'auto' is resolved by the pipeline's haze probe before setup")
@@ -207,9 +212,8 @@ class MediumHeads(nn.Module):
         self.config = config
         h = config.hidden
         self.light_mode = config.light
+        config.check_values()
         self.sh_degree = int(config.sh_degree)
-        if self.light_mode == "sh" and not 0 <= self.sh_degree <= 2:
-            raise ValueError(f"medium SH degree must be 0, 1 or 2, got {self.sh_degree}")
         n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
         self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
         self.light_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, n_light))

@@ -33,6 +33,7 @@ from torch.nn import functional as F
 
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
+from tridehaze_plugin.errors import ConfigError
 
 
 @dataclass
@@ -54,6 +55,12 @@ class CompositeConfig:
     """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
     t_floor: float = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
+
+    def check_values(self, prefix: str = "--pipeline.composite.") -> None:
+        for name, value in (("num-samples", self.num_samples), ("ray-stride", self.ray_stride),
+                            ("coarse-rays", self.coarse_rays)):  # fmt: skip
+            if value is not None and value < 1:
+                raise ConfigError(f"{prefix}{name} must be >= 1, got {value}")
 
 
 @dataclass
@@ -109,12 +116,7 @@ class MediumCompositor:
     """Computes T and S for a view from a medium field and the clean render's depth and alpha."""
 
     def __init__(self, config: CompositeConfig) -> None:
-        if config.num_samples < 1:
-            raise ValueError(f"num_samples must be >= 1, got {config.num_samples}")
-        if config.ray_stride is not None and config.ray_stride < 1:
-            raise ValueError(f"ray_stride must be >= 1, got {config.ray_stride}")
-        if config.coarse_rays < 1:
-            raise ValueError(f"coarse_rays must be >= 1, got {config.coarse_rays}")
+        config.check_values()
         self.config = config
 
     def stride_for(self, height: int, width: int) -> int:

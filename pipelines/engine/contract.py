@@ -32,6 +32,12 @@ class PipelineConfig:
     def check_values(self) -> None:
         """Reject values that cannot work, naming the flag (called right after parsing)."""
 
+    def resolve(self, datamanager: DataManager, seed: int) -> tuple[PipelineConfig, list[Decision]]:
+        """Settle the choices left to the data (e.g. a haze probe picking the medium) before
+        :meth:`setup`: returns the config to build and to save, so a reloaded or resumed run never
+        decides again, and the decisions taken (printed and logged by the trainer)."""
+        return self, []
+
     def setup(
         self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000, training: bool = True
     ) -> Pipeline:

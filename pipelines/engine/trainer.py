@@ -24,7 +24,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from components.data.loader import load_scene
 from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
 from pipelines.engine.config import TrainerConfig
-from pipelines.engine.contract import Pipeline, StepResult
+from pipelines.engine.contract import Decision, Pipeline, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.device import resolve_device
 from pipelines.engine.early_stop import EarlyStopper, heldout_l1
@@ -132,6 +132,7 @@ class Trainer:
         if not scene.train_indices:
             raise ConfigError("the dataset has no training views", where=str(scene.root))
         self.datamanager = DataManager(scene, self.device, seed=cfg.seed)
+        cfg.pipeline, decisions = cfg.pipeline.resolve(self.datamanager, cfg.seed)
         self.pipeline: Pipeline = cfg.pipeline.setup(self.datamanager, seed=cfg.seed, max_steps=cfg.max_steps)
         if self.resume is not None:
             self.run_dir = self.resume
@@ -156,7 +157,7 @@ class Trainer:
         )
         if self.pipeline.describe():
             self.console.print(self.pipeline.describe())
-        self._log_decisions(self.start_step)
+        self._log_decisions(self.start_step, decisions)
         self.console.print(f"run folder: {self.run_dir}")
         if self.start_step:
             self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
@@ -322,7 +323,7 @@ class Trainer:
         self._print_summary(final)
         return TrainResult(self.run_dir, done, seconds, final)
 
-    def _log_decisions(self, step: int, extra: list[str] | None = None) -> None:
+    def _log_decisions(self, step: int, extra: list[str | Decision] | None = None) -> None:
         """Print the pipeline's own choices (and ``extra`` ones) and append them to
         ``logs/decisions.jsonl``."""
         decisions = self.pipeline.pop_decisions() + list(extra or [])

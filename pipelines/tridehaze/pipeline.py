@@ -17,7 +17,7 @@ from torch import Tensor, nn
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
-from components.losses.dcp import DCPResult, dcp_transmittance_loss
+from components.losses.dcp import dcp_transmittance_loss
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
@@ -112,8 +112,6 @@ class GaussianPipelineConfig(PipelineConfig):
     def check_values(self) -> None:
         if not all(0.0 <= c <= 1.0 for c in self.background):
             raise ConfigError(f"--pipeline.background must be three values in [0, 1], got {self.background}")
-        if not 0.0 <= self.loss.lambda_ssim <= 1.0:
-            raise ConfigError(f"--pipeline.loss.lambda-ssim must be in [0, 1], got {self.loss.lambda_ssim}")
         if not 0.0 < self.t_min <= 1.0:
             raise ConfigError(f"--pipeline.t-min must be in (0, 1], got {self.t_min}")
         for flag, v in (
@@ -124,25 +122,23 @@ class GaussianPipelineConfig(PipelineConfig):
         ):
             if v < 0:
                 raise ConfigError(f"{flag} must be >= 0, got {v}")
-        if self.composite.num_samples < 1:
-            raise ConfigError(
-                f"--pipeline.composite.num-samples must be >= 1, got {self.composite.num_samples}"
-            )
-        if self.composite.ray_stride is not None and self.composite.ray_stride < 1:
-            raise ConfigError(
-                f"--pipeline.composite.ray-stride must be >= 1, got {self.composite.ray_stride}"
-            )
-        if self.medium.light == "sh" and not 0 <= self.medium.sh_degree <= 2:
-            raise ConfigError(f"--pipeline.medium.sh-degree must be 0, 1 or 2, got {self.medium.sh_degree}")
-        if not 0.0 <= self.densify.plateau_min_improvement <= 1.0:
-            raise ConfigError(
-                "--pipeline.densify.plateau-min-improvement must be in [0, 1], "
-                f"got {self.densify.plateau_min_improvement}"
-            )
+        for sub in (self.loss, self.composite, self.medium, self.densify):
+            sub.check_values()
         if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
             raise ConfigError(
                 "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
             )
+
+    def resolve(self, datamanager: DataManager, seed: int) -> tuple[GaussianPipelineConfig, list[Decision]]:
+        """``--pipeline.medium.backend auto``: the haze probe of the training views picks the medium."""
+        if self.medium.backend != "auto":
+            return self, []
+        train = datamanager.train_indices
+        probe = probe_haze(
+            datamanager, train, datamanager.scene.points, seed, dcp_per_view(datamanager, train)
+        )
+        resolved = replace(self, medium=replace(self.medium, backend=probe.backend))
+        return resolved, [Decision(probe.message(), {"haze_probe": probe.to_dict()})]
 
     def setup(
         self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000, training: bool = True
@@ -179,12 +175,7 @@ class GaussianPipeline(Pipeline):
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         self.init_info: dict[str, float | str] = {}
-        self._decisions: list[str | Decision] = []
         train = datamanager.train_indices
-        dcp_train: dict[int, DCPResult] = {}  # the probe's dark channels, reused by the priors below
-        if config.medium.backend == "auto":
-            dcp_train = dcp_per_view(datamanager, train)
-            self._resolve_auto_medium(datamanager, seed, dcp_train)
         self.medium = config.medium.setup(bounds=bounds).to(device)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
 
@@ -194,7 +185,7 @@ class GaussianPipeline(Pipeline):
         dehaze_inputs = training and config.input_dehaze == "dcp"
         needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
         needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
-        dcp = (dcp_train or dcp_per_view(datamanager, train)) if needs_dcp else {}
+        dcp = dcp_per_view(datamanager, train) if needs_dcp else {}
         self._targets = dehazed_views(datamanager, dcp) if dehaze_inputs else {}
         points, colors = scene.points, scene.point_colors
         if (uses_medium and config.init_medium or dehaze_inputs) and dcp:
@@ -233,13 +224,6 @@ class GaussianPipeline(Pipeline):
         )
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
-
-    def _resolve_auto_medium(self, datamanager: DataManager, seed: int, dcp: dict[int, DCPResult]) -> None:
-        """Replace ``auto`` by the probe's choice in the config itself, so the run's saved config
-        names the medium it trained (reloading never probes again)."""
-        probe = probe_haze(datamanager, datamanager.train_indices, datamanager.scene.points, seed, dcp)
-        self.config.medium = replace(self.config.medium, backend=probe.backend)
-        self._decisions.append(Decision(probe.message(), {"haze_probe": probe.to_dict()}))
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:
@@ -388,8 +372,7 @@ class GaussianPipeline(Pipeline):
         return self.medium
 
     def pop_decisions(self) -> list[str | Decision]:
-        out = self._decisions + self.densifier.decisions
-        self._decisions, self.densifier.decisions = [], []
+        out, self.densifier.decisions = self.densifier.decisions, []
         return out
 
     def _apply(self, fn, *args, **kwargs):  # noqa: ANN001, ANN202
