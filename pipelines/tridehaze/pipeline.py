@@ -17,7 +17,7 @@ from torch import Tensor, nn
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
-from components.losses.dcp import dcp_transmittance_loss
+from components.losses.dcp import DCPResult, dcp_transmittance_loss
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
@@ -147,6 +147,28 @@ class GaussianPipelineConfig(PipelineConfig):
         return GaussianPipeline(self, datamanager, seed, max_steps, training)
 
 
+@dataclass(frozen=True)
+class _PriorPlan:
+    """Which data-driven priors a run needs, decided once from the config and the data."""
+
+    uses_medium: bool
+    dehaze_inputs: bool
+    depth_source: str
+    """The pseudo-depth source in use (``none`` when the depth loss is off)."""
+    needs_dcp: bool
+
+    @staticmethod
+    def decide(
+        config: GaussianPipelineConfig, dm: DataManager, uses_medium: bool, training: bool
+    ) -> _PriorPlan:
+        source = resolve_depth_prior(config.depth_prior, dm)
+        needs_depth = training and config.lambda_depth > 0 and source != "none"
+        dehaze_inputs = training and config.input_dehaze == "dcp"
+        needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
+        needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
+        return _PriorPlan(uses_medium, dehaze_inputs, source if needs_depth else "none", needs_dcp)
+
+
 class GaussianPipeline(Pipeline):
     """3D Gaussians (+ optional medium) + rasterizer + losses on one view per step."""
 
@@ -162,8 +184,7 @@ class GaussianPipeline(Pipeline):
         self.config = config
         self.datamanager = datamanager
         scene = datamanager.scene
-        device = datamanager.device
-        torch.manual_seed(seed)
+        torch.manual_seed(seed)  # the medium's and the model's initial values draw from it, in this order
         extent = float(scene.cameras.centers.norm(dim=-1).max()) * 1.1 if len(scene) > 1 else 1.0
         self.scene_extent = max(extent, 1e-6)
         self.max_steps = max_steps
@@ -174,56 +195,58 @@ class GaussianPipeline(Pipeline):
         self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
-        self.init_info: dict[str, float | str] = {}
-        train = datamanager.train_indices
-        self.medium = config.medium.setup(bounds=bounds).to(device)
+        self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
-
-        uses_medium = self.medium.has_medium
-        source = resolve_depth_prior(config.depth_prior, datamanager)
-        needs_depth = training and config.lambda_depth > 0 and source != "none"
-        dehaze_inputs = training and config.input_dehaze == "dcp"
-        needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
-        needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
-        dcp = dcp_per_view(datamanager, train) if needs_dcp else {}
-        self._targets = dehazed_views(datamanager, dcp) if dehaze_inputs else {}
-        points, colors = scene.points, scene.point_colors
-        if (uses_medium and config.init_medium or dehaze_inputs) and dcp:
-            est = estimate_medium(datamanager, dcp, points)
-            if uses_medium:
-                beta = est.beta if est.beta is not None else config.medium.init_beta
-                self.medium.initialize(beta, est.airlight)
-                self.init_info.update(
-                    init_beta=beta, init_airlight=str([round(a, 3) for a in est.airlight.tolist()])
-                )
-            if config.dehaze_seed_colors and points is not None and colors is not None:
-                colors = dehaze_point_colors(points, colors, scene.cameras.centers, est)
-        self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent).to(
-            device
-        )
+        plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
+        dcp = dcp_per_view(datamanager, datamanager.train_indices) if plan.needs_dcp else {}
+        self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
+        colors = self._initialize_medium(dcp, plan)
+        self.model = config.model.setup(points=scene.points, colors=colors, scene_extent=self.scene_extent)
+        self.model.to(datamanager.device)
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
         self._photometric: Tensor | None = None
         self.register_buffer(
-            "background", torch.tensor(config.background, dtype=torch.float32, device=device)
+            "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)
         )
         self._gen = torch.Generator(device="cpu").manual_seed(seed)
-
-        warm = None
-        if needs_depth and source == "warmup":
-            warm = warmup_depths(
-                datamanager, config.model, self.rasterizer, scene.points, scene.point_colors,
-                self.scene_extent, config.warmup_steps, seed,
-            )  # fmt: skip
-        self.depth_source = source if needs_depth else "none"
-        self.priors: dict[int, ViewPrior] = (
-            build_view_priors(datamanager, train, dcp, self.depth_source, scene.points, warm)
-            if dcp or needs_depth
-            else {}
-        )
+        self.depth_source = plan.depth_source
+        self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
+
+    def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:
+        """Start the medium from the dark channel's estimate; returns the seed colours to use
+        (with the estimated haze taken out when ``dehaze_seed_colors``)."""
+        cfg, dm = self.config, self.datamanager
+        points, colors = dm.scene.points, dm.scene.point_colors
+        self.init_info: dict[str, float | str] = {}
+        if not ((plan.uses_medium and cfg.init_medium or plan.dehaze_inputs) and dcp):
+            return colors
+        est = estimate_medium(dm, dcp, points)
+        if plan.uses_medium:
+            beta = est.beta if est.beta is not None else cfg.medium.init_beta
+            self.medium.initialize(beta, est.airlight)
+            self.init_info.update(
+                init_beta=beta, init_airlight=str([round(a, 3) for a in est.airlight.tolist()])
+            )
+        if cfg.dehaze_seed_colors and points is not None and colors is not None:
+            colors = dehaze_point_colors(points, colors, dm.scene.cameras.centers, est)
+        return colors
+
+    def _view_priors(self, dcp: dict[int, DCPResult], plan: _PriorPlan, seed: int) -> dict[int, ViewPrior]:
+        """Per-view pseudo-depth and dark-channel transmittance (a warm-up run first if it is the source)."""
+        dm, scene = self.datamanager, self.datamanager.scene
+        warm = None
+        if plan.depth_source == "warmup":
+            warm = warmup_depths(
+                dm, self.config.model, self.rasterizer, scene.points, scene.point_colors,
+                self.scene_extent, self.config.warmup_steps, seed,
+            )  # fmt: skip
+        if not (dcp or plan.depth_source != "none"):
+            return {}
+        return build_view_priors(dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm)
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:
