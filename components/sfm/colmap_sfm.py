@@ -187,6 +187,24 @@ def _colmap_log(verbose: bool) -> Iterator[None]:
         pycolmap.logging.minloglevel = old
 
 
+class _Stages:
+    """Times each stage of the reconstruction and reports its start, progress and one-line result."""
+
+    def __init__(self, reporter: Reporter) -> None:
+        self.rep = reporter
+        self.timings: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str, total: int | None) -> Iterator[list[str]]:
+        """``with stages.stage(name, n) as detail: ...; detail.append("what it found")``."""
+        t0 = time.perf_counter()
+        self.rep.start(name, total)
+        detail: list[str] = []
+        yield detail
+        self.timings[name] = time.perf_counter() - t0
+        self.rep.finish(name, self.timings[name], "".join(detail))
+
+
 def run_sfm(
     image_dir: Path,
     names: list[str],
@@ -204,14 +222,40 @@ def run_sfm(
     import pycolmap
 
     opts.check()
-    rep = reporter or Reporter()
-    timings: dict[str, float] = {}
+    stages = _Stages(reporter or Reporter())
     work_dir.mkdir(parents=True, exist_ok=True)
     pycolmap.set_random_seed(opts.seed)
+    db_path = work_dir / "database.db"
     with _colmap_log(opts.verbose):
-        # 1. prepare -------------------------------------------------------------------
-        t0 = time.perf_counter()
-        rep.start("prepare", len(names))
+        match_dir = _prepare(image_dir, names, work_dir, opts, stages)
+        mean_kp = _extract_features(db_path, image_dir, match_dir, names, opts, stages)
+        matcher, pairs, verified = _match(db_path, names, work_dir, opts, ordered, stages)
+        found = f"{verified} of {len(pairs)} photo pairs matched ({mean_kp:.0f} keypoints per photo)"
+        hint = ("" if matcher == "exhaustive" else ", try --matcher exhaustive") + (
+            "" if opts.enhance != "none" else ", or --enhance clahe for hazy photos"
+        )
+        rec, num_models, model_dir = _map(db_path, image_dir, work_dir, names, opts, stages, found, hint)
+        registered = sorted(im.name for im in rec.images.values() if im.has_pose)
+        _undistort(work_dir, model_dir, image_dir, out_dir, opts, stages, len(registered))
+    return SfmResult(
+        num_images=len(names),
+        registered=registered,
+        unregistered=sorted(set(names) - set(registered)),
+        num_points=int(rec.num_points3D()),
+        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
+        mean_track_length=float(rec.compute_mean_track_length()),
+        num_models=num_models,
+        matcher=matcher,
+        num_pairs=len(pairs),
+        num_verified_pairs=verified,
+        mean_keypoints=mean_kp,
+        timings_s={k: round(v, 3) for k, v in stages.timings.items()},
+    )
+
+
+def _prepare(image_dir: Path, names: list[str], work_dir: Path, opts: SfmOptions, stages: _Stages) -> Path:
+    """Check every photo reads (and sizes agree for one camera); write enhanced copies for matching."""
+    with stages.stage("prepare", len(names)) as detail:
         match_dir = image_dir if opts.enhance == "none" else work_dir / "match"
         sizes: dict[tuple[int, int], str] = {}
         for name in names:
@@ -228,13 +272,18 @@ def run_sfm(
             if opts.enhance != "none":
                 out = enhance_image(rgb, opts.enhance)
                 write_bytes_atomic(match_dir / name, encode_image(match_dir / name, out))
-            rep.advance()
-        timings["prepare"] = time.perf_counter() - t0
-        rep.finish("prepare", timings["prepare"], f"{len(names)} photos, enhance {opts.enhance}")
+            stages.rep.advance()
+        detail.append(f"{len(names)} photos, enhance {opts.enhance}")
+    return match_dir
 
-        # 2. features ------------------------------------------------------------------
-        t0 = time.perf_counter()
-        db_path = work_dir / "database.db"
+
+def _extract_features(
+    db_path: Path, image_dir: Path, match_dir: Path, names: list[str], opts: SfmOptions, stages: _Stages
+) -> float:
+    """SIFT features of every photo into the database; returns the mean keypoint count."""
+    import pycolmap
+
+    with stages.stage("features", len(names)) as detail:
         pycolmap.Database.open(db_path).close()
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = opts.camera_model
@@ -249,37 +298,36 @@ def run_sfm(
         extraction.max_image_size = opts.max_image_size
         extraction.use_gpu = False
         extraction.sift.max_num_features = opts.max_num_features
-        rep.start("features", len(names))
         chunk = max(opts.threads, 4)
         for i in range(0, len(names), chunk):
             part = names[i : i + chunk]
             pycolmap.extract_features(
-                db_path,
-                match_dir,
-                image_names=part,
-                camera_mode=mode,
-                reader_options=reader,
-                extraction_options=extraction,
-                device=pycolmap.Device.cpu,
-            )
-            rep.advance(len(part))
+                db_path, match_dir, image_names=part, camera_mode=mode, reader_options=reader,
+                extraction_options=extraction, device=pycolmap.Device.cpu,
+            )  # fmt: skip
+            stages.rep.advance(len(part))
         with pycolmap.Database.open(db_path) as db:
             kp = {im.name: db.num_keypoints_for_image(im.image_id) for im in db.read_all_images()}
         mean_kp = float(np.mean([kp.get(n, 0) for n in names]))
-        timings["features"] = time.perf_counter() - t0
-        rep.finish("features", timings["features"], f"{mean_kp:.0f} keypoints per photo")
+        detail.append(f"{mean_kp:.0f} keypoints per photo")
+    return mean_kp
 
-        # 3. matching ------------------------------------------------------------------
-        t0 = time.perf_counter()
-        matcher = resolve_matcher(opts.matcher, len(names), ordered)
-        pairs = image_pairs(names, matcher, opts.sequential_overlap)
+
+def _match(
+    db_path: Path, names: list[str], work_dir: Path, opts: SfmOptions, ordered: bool, stages: _Stages
+) -> tuple[str, list[tuple[str, str]], int]:
+    """Match the chosen photo pairs and verify them geometrically: (matcher, pairs, verified count)."""
+    import pycolmap
+
+    matcher = resolve_matcher(opts.matcher, len(names), ordered)
+    pairs = image_pairs(names, matcher, opts.sequential_overlap)
+    with stages.stage("matching", len(pairs)) as detail:
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = opts.threads
         matching.use_gpu = False
         verification = pycolmap.TwoViewGeometryOptions()
         if hasattr(verification, "ransac"):
             verification.ransac.random_seed = opts.seed
-        rep.start("matching", len(pairs))
         step = max(50, len(pairs) // 20)
         for i in range(0, len(pairs), step):
             part = pairs[i : i + step]
@@ -288,13 +336,10 @@ def run_sfm(
             pairing = pycolmap.ImportedPairingOptions()
             pairing.match_list_path = pair_file
             pycolmap.match_image_pairs(
-                db_path,
-                matching_options=matching,
-                pairing_options=pairing,
-                verification_options=verification,
-                device=pycolmap.Device.cpu,
-            )
-            rep.advance(len(part))
+                db_path, matching_options=matching, pairing_options=pairing,
+                verification_options=verification, device=pycolmap.Device.cpu,
+            )  # fmt: skip
+            stages.rep.advance(len(part))
         with pycolmap.Database.open(db_path) as db:
             _, geoms = db.read_two_view_geometries()
         bad = {
@@ -302,11 +347,19 @@ def run_sfm(
             pycolmap.TwoViewGeometryConfiguration.DEGENERATE,
         }
         verified = sum(1 for g in geoms if g.config not in bad and len(g.inlier_matches) > 0)
-        timings["matching"] = time.perf_counter() - t0
-        rep.finish("matching", timings["matching"], f"{matcher}: {verified} of {len(pairs)} pairs verified")
+        detail.append(f"{matcher}: {verified} of {len(pairs)} pairs verified")
+    return matcher, pairs, verified
 
-        # 4. mapping -------------------------------------------------------------------
-        t0 = time.perf_counter()
+
+def _map(
+    db_path: Path, image_dir: Path, work_dir: Path, names: list[str], opts: SfmOptions, stages: _Stages,
+    found: str, hint: str,
+) -> tuple[Any, int, Path]:  # fmt: skip
+    """Incremental mapping; the model with the most registered photos is written to work_dir/sparse/best.
+    Returns (reconstruction, number of models, its folder); ``found``/``hint`` word the no-model error."""
+    import pycolmap
+
+    with stages.stage("mapping", len(names)) as detail:
         mapping = pycolmap.IncrementalPipelineOptions()
         mapping.num_threads = opts.threads
         mapping.random_seed = opts.seed
@@ -316,79 +369,45 @@ def run_sfm(
         mapping.min_model_size = min(mapping.min_model_size, max(2, len(names) // 2))
         sparse_dir = work_dir / "sparse"
         sparse_dir.mkdir(exist_ok=True)
-        rep.start("mapping", len(names))
-        state = {"n": 0}
-
-        def _next_image() -> None:
-            state["n"] += 1
-            rep.advance(1)
-
-        def _initial_pair() -> None:
-            state["n"] += 2
-            rep.advance(2)
-
         models = pycolmap.incremental_mapping(
-            db_path,
-            image_dir,
-            sparse_dir,
-            options=mapping,
-            initial_image_pair_callback=_initial_pair,
-            next_image_callback=_next_image,
-        )
-        timings["mapping"] = time.perf_counter() - t0
+            db_path, image_dir, sparse_dir, options=mapping,
+            initial_image_pair_callback=lambda: stages.rep.advance(2),
+            next_image_callback=lambda: stages.rep.advance(1),
+        )  # fmt: skip
         if not models:
             raise DataError(
-                f"structure-from-motion found no model: {verified} of {len(pairs)} photo pairs matched "
-                f"({mean_kp:.0f} keypoints per photo)",
+                f"structure-from-motion found no model: {found}",
                 where=str(image_dir),
-                fix="use photos with more overlap and texture"
-                + ("" if matcher == "exhaustive" else ", try --matcher exhaustive")
-                + ("" if opts.enhance != "none" else ", or --enhance clahe for hazy photos"),
+                fix="use photos with more overlap and texture" + hint,
             )
-        best_id = max(models, key=lambda k: (models[k].num_reg_images(), models[k].num_points3D()))
-        rec = models[best_id]
-        registered = sorted(im.name for im in rec.images.values() if im.has_pose)
-        unregistered = sorted(set(names) - set(registered))
-        rep.finish(
-            "mapping",
-            timings["mapping"],
-            f"{len(registered)}/{len(names)} registered, {rec.num_points3D()} points, {len(models)} model(s)",
+        rec = models[max(models, key=lambda k: (models[k].num_reg_images(), models[k].num_points3D()))]
+        registered = sum(1 for im in rec.images.values() if im.has_pose)
+        detail.append(
+            f"{registered}/{len(names)} registered, {rec.num_points3D()} points, {len(models)} model(s)"
         )
-        model_dir = sparse_dir / "best"
-        model_dir.mkdir()
-        rec.write(model_dir)
+    model_dir = sparse_dir / "best"
+    model_dir.mkdir()
+    rec.write(model_dir)
+    return rec, len(models), model_dir
 
-        # 5. undistort -----------------------------------------------------------------
-        t0 = time.perf_counter()
-        rep.start("undistort", None)
+
+def _undistort(
+    work_dir: Path, model_dir: Path, image_dir: Path, out_dir: Path, opts: SfmOptions, stages: _Stages,
+    registered: int,
+) -> None:  # fmt: skip
+    """Undistorted images and the PINHOLE model into out_dir/images and out_dir/sparse/0."""
+    import pycolmap
+
+    with stages.stage("undistort", None) as detail:
         undist = work_dir / "undistorted"
         pycolmap.undistort_images(
-            undist,
-            model_dir,
-            image_dir,
-            output_type="COLMAP",
-            num_threads=opts.threads,
+            undist, model_dir, image_dir, output_type="COLMAP", num_threads=opts.threads
         )
         out_dir.mkdir(parents=True, exist_ok=True)
         shutil.move(str(undist / "images"), str(out_dir / "images"))
         (out_dir / "sparse").mkdir(exist_ok=True)
         shutil.move(str(undist / "sparse"), str(out_dir / "sparse" / "0"))
-        timings["undistort"] = time.perf_counter() - t0
-        rep.finish("undistort", timings["undistort"], f"{len(registered)} images")
-    return SfmResult(
-        num_images=len(names),
-        registered=registered,
-        unregistered=unregistered,
-        num_points=int(rec.num_points3D()),
-        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
-        mean_track_length=float(rec.compute_mean_track_length()),
-        num_models=len(models),
-        matcher=matcher,
-        num_pairs=len(pairs),
-        num_verified_pairs=verified,
-        mean_keypoints=mean_kp,
-        timings_s={k: round(v, 3) for k, v in timings.items()},
-    )
+        detail.append(f"{registered} images")
 
 
 def check_sfm_output(out: Path, data: Path) -> None:
