@@ -61,6 +61,8 @@ class GradientPolicy:
 
 
 class TGC(GradientPolicy):
+    """Rescale the gradient reaching J by 1 / clamp(T, t_min) from the first step."""
+
     name = "tgc"
 
     def active(self, stage: int) -> bool:
@@ -68,6 +70,8 @@ class TGC(GradientPolicy):
 
 
 class MDTGC(GradientPolicy):
+    """Medium-decoupled TGC: the 1 / clamp(T, t_min) rescaling only once the medium is frozen (Stage II)."""
+
     name = "md-tgc"
 
     def active(self, stage: int) -> bool:

@@ -27,6 +27,8 @@ ATTRIBUTE = "medium"
 
 
 class GaussianBoundMedium(MediumField):
+    """Medium carried by the Gaussians (per-Gaussian extinction and light, homogeneous per ray): the coupled baseline."""
+
     is_field = False
     renders_with_gaussians = True
 

@@ -1,7 +1,8 @@
 """Rasterizer interface shared by every backend, its output record and its config.
 
-Backends (``torch`` reference here; ``cpu`` and ``gsplat`` come later) implement the same
-semantics, gsplat's *classic* 3DGS mode, so they can be swapped and compared (docs/rasterizer.md).
+Backends (``torch``: the reference; ``cpu``: the compiled CPU kernel, the default; ``gsplat``: CUDA)
+implement the same semantics, gsplat's *classic* 3DGS mode, so they can be swapped and compared
+against the reference with explicit tolerances (docs/rasterizer.md).
 """
 
 from __future__ import annotations

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from tridehaze_plugin import __version__
@@ -15,13 +16,14 @@ def main() -> None:
     console = Console()
     table = Table(title=f"tridehaze {__version__}: registered components")
     for col in ("kind", "name", "from", "description"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")
     for kind in KINDS:
         for e in registry.entries(kind):
-            table.add_row(kind, e.name, e.origin, e.description)
+            # descriptions are plain text: "[x, sin(...)]" must not be read as rich markup
+            table.add_row(kind, escape(e.name), escape(e.origin), escape(e.description))
     console.print(table)
     for failure in registry.failures:
-        console.print(f"[red]failed plugin[/]: {failure.message()}")
+        console.print(f"[red]failed plugin[/]: {escape(failure.message())}")
 
 
 def entrypoint() -> None:
