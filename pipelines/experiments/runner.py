@@ -114,72 +114,67 @@ class AblationRunner:
                 self._procs.discard(proc)
 
     def run_one(self, job: Job) -> dict[str, Any]:
-        o, v = self.opts, job.variant
         rd = self.run_dir(job)
         log_path = self.log_path(job)
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self.peak_rss_mb[threading.get_ident()] = 0.0
         self.cpu_seconds[threading.get_ident()] = 0.0
-        py = sys.executable
-        steps = self.steps(job)
+        out_json = rd / "eval" / "test.json"
         t0 = time.perf_counter()
         with log_path.open("a", encoding="utf-8") as log:
-            if rd.exists() and latest_checkpoint(rd) is not None and self._same_config(job):
-                train = [
-                    py,
-                    "-m",
-                    "tridehaze_plugin.cli.train",
-                    "--resume",
-                    str(rd),
-                    "--max-steps",
-                    str(o.max_steps),
-                ]
-            else:
-                if rd.exists():
-                    shutil.rmtree(rd)  # ours, unfinished and unusable (no checkpoint or other settings)
-                self.state_path(job).parent.mkdir(parents=True, exist_ok=True)
-                write_text_atomic(self.state_path(job), json.dumps(self.signature(job)))
-                train = [
-                    py, "-m", "tridehaze_plugin.cli.train", *v.train_args(), "--data", str(job.scene),
-                    "--output-dir", str(o.output_dir / "runs"), "--timestamp", v.name,
-                    "--max-steps", str(steps), "--seed", str(o.seed), "--threads", str(o.threads),
-                    "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *o.extra,
-                ]  # fmt: skip
-            code = self._call(train, log)
+            code = self._call(self._train_command(job, rd), log)
             train_s = time.perf_counter() - t0
             if code != 0 or self._stopping:
                 return self._failed(job, f"td-train exited with {code}", log_path)
-            out_json = rd / "eval" / "test.json"
-            t1 = time.perf_counter()
+            o = self.opts
             code = self._call(
-                [py, "-m", "tridehaze_plugin.cli.eval", "--load-config", str(rd / "config.yml"),
+                [sys.executable, "-m", "tridehaze_plugin.cli.eval", "--load-config", str(rd / "config.yml"),
                  "--output-path", str(out_json), "--bins", o.bins, "--lpips", o.lpips, "--no-images"],
                 log,
             )  # fmt: skip
-            eval_s = time.perf_counter() - t1
             if code != 0:
                 return self._failed(job, f"td-eval exited with {code}", log_path)
-        report = json.loads(out_json.read_text())
+        result = self._result(job, rd, json.loads(out_json.read_text()), train_s, time.perf_counter() - t0)
+        write_text_atomic(self.result_path(job), json.dumps(result, indent=2) + "\n")
+        return result
+
+    def _train_command(self, job: Job, rd: Path) -> list[str]:
+        """Continue the run folder when it has a checkpoint of the same settings, else start afresh."""
+        o, v, steps = self.opts, job.variant, self.steps(job)
+        train = [sys.executable, "-m", "tridehaze_plugin.cli.train"]
+        if rd.exists() and latest_checkpoint(rd) is not None and self._same_config(job):
+            return [*train, "--resume", str(rd), "--max-steps", str(steps)]
+        if rd.exists():
+            shutil.rmtree(rd)  # ours, unfinished and unusable (no checkpoint or other settings)
+        self.state_path(job).parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.state_path(job), json.dumps(self.signature(job)))
+        return [
+            *train, *v.train_args(), "--data", str(job.scene),
+            "--output-dir", str(o.output_dir / "runs"), "--timestamp", v.name,
+            "--max-steps", str(steps), "--seed", str(o.seed), "--threads", str(o.threads),
+            "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *o.extra,
+        ]  # fmt: skip
+
+    def _result(self, job: Job, rd: Path, report: dict, train_s: float, wall_s: float) -> dict[str, Any]:
+        """The result record of a finished run (the table's row): its numbers and how it was made."""
         train_info = _read_json(rd / "eval" / "metrics.json")
-        result = {
+        return {
             "signature": self.signature(job),
             "status": "ok",
             "scene": job.scene.name,
-            "variant": v.name,
-            "method": v.method,
+            "variant": job.variant.name,
+            "method": job.variant.method,
             "run": str(rd),
             "train_seconds": train_info.get("train_seconds", train_s),
-            "wall_seconds": train_s + eval_s,
+            "wall_seconds": wall_s,
             "gaussians": train_info.get("gaussians"),
-            "steps": steps,
+            "steps": self.steps(job),
             "peak_rss_mb": self.peak_rss_mb.get(threading.get_ident()),
             "cpu_seconds": self.cpu_seconds.get(threading.get_ident()),
             "restoration": report.get("restoration"),
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),
         }
-        write_text_atomic(self.result_path(job), json.dumps(result, indent=2) + "\n")
-        return result
 
     def state_path(self, job: Job) -> Path:
         """The settings a run folder was started with (kept outside it: td-train makes the folder)."""

@@ -120,3 +120,25 @@ def test_td_ablate_bad_input(tmp_path):
     (tmp_path / "b" / "s").mkdir(parents=True)
     r = _cli("tridehaze_plugin.cli.ablate", "--scenes", str(tmp_path / "a" / "s"), str(tmp_path / "b" / "s"))
     assert r.returncode == 2 and "must differ" in r.stderr
+
+
+def test_resume_keeps_the_variants_own_step_count(tmp_path):
+    """A variant with its own step budget (the probe bench's fast preset: 1000 of the runner's
+    3000) resumes to its own budget, not the runner's."""
+    from pipelines.engine.run_config import write_text_atomic
+    from pipelines.experiments.ablation import Variant
+    from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+
+    runner = AblationRunner(RunnerOptions(output_dir=tmp_path, max_steps=3000))
+    job = Job(tmp_path / "scene", Variant("fast", "tri-dehaze-fast", max_steps=1000))
+    rd = runner.run_dir(job)
+    (rd / "checkpoints").mkdir(parents=True)
+    (rd / "checkpoints" / "step-0000250.ckpt").write_bytes(b"x")
+    runner.state_path(job).parent.mkdir(parents=True)
+    write_text_atomic(runner.state_path(job), json.dumps(runner.signature(job)))
+    cmd = runner._train_command(job, rd)
+    assert "--resume" in cmd and cmd[cmd.index("--max-steps") + 1] == "1000", cmd
+    # other settings: the folder is not resumed but restarted, with the variant's budget
+    write_text_atomic(runner.state_path(job), json.dumps({"other": 1}))
+    cmd = runner._train_command(job, rd)
+    assert "--resume" not in cmd and not rd.exists() and cmd[cmd.index("--max-steps") + 1] == "1000"
