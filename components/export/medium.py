@@ -35,6 +35,8 @@ import torch
 
 from components.data.images import write_bytes_atomic, write_image_atomic
 from components.data.scene import SceneTransform
+from components.gaussians.model import GaussianModel
+from components.medium.base import GaussianMediumValues, MediumField
 
 LIGHT_DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64)
 """Directions at which the (direction-dependent) medium light is sampled, in the export frame."""
@@ -116,21 +118,21 @@ def write_slices(beta: np.ndarray, out_dir: Path, vmax: float) -> list[str]:
 
 
 def export_medium(
-    medium,
+    medium: MediumField,
     out_dir: Path,
     transform: SceneTransform | None,
     resolution: int = 64,
     light_resolution: int = 16,
-    gaussian_attr: torch.Tensor | None = None,
+    model: GaussianModel | None = None,
 ) -> dict[str, Any]:
     """Write ``medium.npz`` (+ slice PNGs for a field) to ``out_dir``; returns a summary.
 
     ``transform`` None keeps the normalised frame; otherwise the run's dataparser transform,
-    whose inverse maps the grid into the dataset's own world.
+    whose inverse maps the grid into the dataset's own world. ``model``: the scene's Gaussians,
+    where a medium living on them (``gaussian_values``) is read from.
     """
     frame = "normalized" if transform is None else "original"
     scale = 1.0 if transform is None else float(transform.scale)
-    to_frame = _to_frame_matrix(transform)
     tr = transform or SceneTransform.identity()
     common = {
         "bounds_center": medium.bounds_center.detach().cpu().numpy().astype(np.float64),
@@ -141,27 +143,40 @@ def export_medium(
         "frame": np.array(frame),
         "beta_unit": np.array(f"1 / {'dataset' if frame == 'original' else 'normalised'} unit"),
     }
-    if gaussian_attr is not None:  # gaussian-bound: per-Gaussian values, no field
-        raw = gaussian_attr.detach().float().cpu()
-        kappa = float(medium.log_kappa.detach().exp())
-        beta = (kappa * torch.nn.functional.softplus(raw[:, 0])).numpy() * scale
-        light = torch.sigmoid(raw[:, 1:]).numpy()
-        bg = medium.background.detach().float().cpu()
-        arrays = {
-            **common,
-            "kind": np.array("gaussian-bound"),
-            "beta_per_gaussian": beta.astype(np.float32),
-            "light_per_gaussian": light.astype(np.float16),
-            "background_beta": np.float32(kappa * float(torch.nn.functional.softplus(bg[0])) * scale),
-            "background_light": torch.sigmoid(bg[1:]).numpy().astype(np.float32),
-        }
-        _save_npz(out_dir / "medium.npz", arrays)
-        return {
-            "kind": "gaussian-bound",
-            "files": ["medium.npz"],
-            "beta_median": float(np.median(beta)),
-            "beta_max": float(beta.max(initial=0.0)),
-        }
+    values = medium.gaussian_values(model) if model is not None else None
+    if values is not None:  # gaussian-bound: per-Gaussian values, no field
+        return _export_per_gaussian(values, common, scale, out_dir)
+    return _export_field(
+        medium, common, scale, _to_frame_matrix(transform), resolution, light_resolution, out_dir
+    )
+
+
+def _export_per_gaussian(
+    values: GaussianMediumValues, common: dict[str, Any], scale: float, out_dir: Path
+) -> dict[str, Any]:
+    beta = values.beta.numpy() * scale
+    arrays = {
+        **common,
+        "kind": np.array("gaussian-bound"),
+        "beta_per_gaussian": beta.astype(np.float32),
+        "light_per_gaussian": values.light.numpy().astype(np.float16),
+        "background_beta": np.float32(values.background_beta * scale),
+        "background_light": values.background_light.numpy().astype(np.float32),
+    }
+    _save_npz(out_dir / "medium.npz", arrays)
+    return {
+        "kind": "gaussian-bound",
+        "files": ["medium.npz"],
+        "beta_median": float(np.median(beta)),
+        "beta_max": float(beta.max(initial=0.0)),
+    }
+
+
+def _export_field(
+    medium: MediumField, common: dict[str, Any], scale: float, to_frame: np.ndarray,
+    resolution: int, light_resolution: int, out_dir: Path,
+) -> dict[str, Any]:  # fmt: skip
+    """The field sampled on a resolution^3 grid (extinction) and a coarser one per light direction."""
     center, half = common["bounds_center"], common["bounds_half_size"]
     pts, g2w = _grid_points(center, half, resolution)
     beta, _ = _evaluate(medium, pts, np.array([0.0, 0.0, 1.0]))

@@ -139,6 +139,17 @@ class MediumConfig(ComponentConfig):
         )
 
 
+@dataclass
+class GaussianMediumValues:
+    """A medium carried by the Gaussians, in physical units of the normalised frame."""
+
+    beta: Tensor  # [N] extinction per Gaussian
+    light: Tensor  # [N, 3] medium light per Gaussian
+    background_beta: float
+    """Extinction where no Gaussian covers a pixel."""
+    background_light: Tensor  # [3]
+
+
 class MediumField(nn.Module):
     """Base of all medium fields. Subclasses implement :meth:`forward`; everything a pipeline may
     ask of a medium is a hook declared here with the default a 3D field wants.
@@ -199,8 +210,8 @@ class MediumField(nn.Module):
         compositor marches this field from the camera to the surface."""
         return compositor(self, camera, depth, alpha)
 
-    def gaussian_attribute(self, model: GaussianModel) -> Tensor | None:
-        """The per-Gaussian medium values to export ([N, D]), for a medium living on the Gaussians."""
+    def gaussian_values(self, model: GaussianModel) -> GaussianMediumValues | None:
+        """The medium's values per Gaussian (for export), for a medium living on the Gaussians."""
         return None
 
 

@@ -17,7 +17,7 @@ from torch.nn import functional as F
 
 from components.data.cameras import Cameras
 from components.gaussians.model import GaussianModel
-from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumSample
+from components.medium.base import FieldBounds, GaussianMediumValues, MediumConfig, MediumField, MediumSample
 from components.medium.compositing import MediumCompositor, MediumRender, homogeneous_along_rays
 from components.rasterizers.base import Rasterizer
 from tridehaze_plugin.registry import register
@@ -58,8 +58,17 @@ class GaussianBoundMedium(MediumField):
         super().set_trainable(on, model)
         model.attribute(ATTRIBUTE).requires_grad_(on)
 
-    def gaussian_attribute(self, model: GaussianModel) -> Tensor:
-        return model.attribute(ATTRIBUTE)  # [N, 4]
+    @torch.no_grad()
+    def gaussian_values(self, model: GaussianModel) -> GaussianMediumValues:
+        raw = model.attribute(ATTRIBUTE).detach().float().cpu()  # [N, 4]
+        kappa = float(self.log_kappa.detach().exp())
+        bg = self.background.detach().float().cpu()
+        return GaussianMediumValues(
+            beta=kappa * F.softplus(raw[:, 0]),
+            light=torch.sigmoid(raw[:, 1:]),
+            background_beta=kappa * float(F.softplus(bg[0])),
+            background_light=torch.sigmoid(bg[1:]),
+        )
 
     def render_view(
         self,

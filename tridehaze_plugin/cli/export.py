@@ -87,7 +87,7 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
         if medium is not None and medium.has_medium and (medium.is_field or medium.renders_with_gaussians):
             summary["medium"] = export_medium(
                 medium, tmp, transform, args.medium_resolution, args.light_resolution,
-                gaussian_attr=medium.gaussian_attribute(model),
+                model=model,
             )  # fmt: skip
         summary["seconds"] = round(time.perf_counter() - t0, 3)
         write_json(tmp / "export.json", summary)
