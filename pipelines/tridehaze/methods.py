@@ -8,6 +8,7 @@ Third-party packages register theirs via the ``tridehaze.methods`` entry-point g
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 from components.medium.base import MediumConfig
 from pipelines.engine.config import TrainerConfig
@@ -96,16 +97,13 @@ def tri_dehaze_constant() -> TrainerConfig:
 )
 def tri_dehaze_fast() -> TrainerConfig:
     """The ``fast`` point of the measured speed-accuracy front (``td-bench tradeoff`` measures it)."""
-    base = tri_dehaze()
-    p = base.pipeline
-    pipeline = replace(
-        p,
-        model=replace(p.model, sh_degree=1),
-        densify=replace(p.densify, max_gaussians=20_000, growth="plateau"),
-        medium=replace(p.medium, backend="auto", resolution=32),
-        composite=replace(p.composite, num_samples=8, coarse_rays=300),
-    )
-    return replace(base, method_name="tri-dehaze-fast", max_steps=1000, pipeline=pipeline)
+    return _tri_dehaze_variant(
+        "tri-dehaze-fast", 1000,
+        model=dict(sh_degree=1),
+        densify=dict(max_gaussians=20_000, growth="plateau"),
+        medium=dict(backend="auto", resolution=32),
+        composite=dict(num_samples=8, coarse_rays=300),
+    )  # fmt: skip
 
 
 @method(
@@ -117,12 +115,15 @@ def tri_dehaze_fast() -> TrainerConfig:
 )
 def tri_dehaze_quality() -> TrainerConfig:
     """The ``quality`` point of the measured speed-accuracy front (``td-bench tradeoff`` measures it)."""
+    return _tri_dehaze_variant(
+        "tri-dehaze-quality", 3000,
+        densify=dict(grow_grad2d=4e-4), medium=dict(resolution=128), composite=dict(coarse_rays=4800),
+    )  # fmt: skip
+
+
+def _tri_dehaze_variant(name: str, max_steps: int, **sub_configs: dict[str, Any]) -> TrainerConfig:
+    """tri-dehaze with fields of its pipeline's sub-configs replaced (``medium=dict(resolution=32)``)."""
     base = tri_dehaze()
     p = base.pipeline
-    pipeline = replace(
-        p,
-        densify=replace(p.densify, grow_grad2d=4e-4),
-        medium=replace(p.medium, resolution=128),
-        composite=replace(p.composite, coarse_rays=4800),
-    )
-    return replace(base, method_name="tri-dehaze-quality", max_steps=3000, pipeline=pipeline)
+    changed = {group: replace(getattr(p, group), **fields) for group, fields in sub_configs.items()}
+    return replace(base, method_name=name, max_steps=max_steps, pipeline=replace(p, **changed))
