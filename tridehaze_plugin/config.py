@@ -136,23 +136,34 @@ def _coerce(raw: Any, tp: Any, current: Any, where: str) -> Any:
             raise ConfigError(f"value {raw!r} is not one of {list(get_args(tp))}", where=where)
         return raw
     if origin in (list, tuple):
-        if not isinstance(raw, (list, tuple)):
-            raise ConfigError(f"expected a list, got {type(raw).__name__}", where=where)
-        args = get_args(tp)
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            if len(args) != len(raw):
-                raise ConfigError(f"expected {len(args)} items, got {len(raw)}", where=where)
-            return tuple(
-                _coerce(r, a, None, f"{where}[{i}]") for i, (r, a) in enumerate(zip(raw, args, strict=True))
-            )
-        item_tp = args[0] if args else Any
-        items = [_coerce(r, item_tp, None, f"{where}[{i}]") for i, r in enumerate(raw)]
-        return tuple(items) if origin is tuple else items
+        return _coerce_sequence(raw, tp, where)
     if origin is dict:
         if not isinstance(raw, dict):
             raise ConfigError(f"expected a mapping, got {type(raw).__name__}", where=where)
         kt, vt = get_args(tp) or (Any, Any)
         return {_coerce(k, kt, None, where): _coerce(v, vt, None, f"{where}.{k}") for k, v in raw.items()}
+    return _coerce_scalar(raw, tp, where)
+
+
+def _coerce_sequence(raw: Any, tp: Any, where: str) -> list | tuple:
+    """A list or tuple field: fixed-length tuples item by item, else every item as the item type."""
+    origin = get_origin(tp)
+    if not isinstance(raw, (list, tuple)):
+        raise ConfigError(f"expected a list, got {type(raw).__name__}", where=where)
+    args = get_args(tp)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        if len(args) != len(raw):
+            raise ConfigError(f"expected {len(args)} items, got {len(raw)}", where=where)
+        return tuple(
+            _coerce(r, a, None, f"{where}[{i}]") for i, (r, a) in enumerate(zip(raw, args, strict=True))
+        )
+    item_tp = args[0] if args else Any
+    items = [_coerce(r, item_tp, None, f"{where}[{i}]") for i, r in enumerate(raw)]
+    return tuple(items) if origin is tuple else items
+
+
+def _coerce_scalar(raw: Any, tp: Any, where: str) -> Any:
+    """A leaf value: checked against its exact type (YAML's bool is never taken for an int)."""
     if tp is Any:
         return raw
     if tp in (Path, PurePath):
