@@ -124,22 +124,48 @@ def _check_common(args: ImagesArgs | VideoArgs) -> None:
     check_sfm_output(args.output_dir, args.data)
 
 
+def _check_video(args: VideoArgs) -> None:
+    if args.num_frames < 2:
+        raise ConfigError(
+            f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 150"
+        )
+    if not args.data.is_file():
+        raise ConfigError(
+            "video file not found" if not args.data.exists() else "--data is a folder, not a video file",
+            where=str(args.data),
+            fix="pass a video file (use `td-process-data images` for a folder of photos)",
+        )
+
+
+def _frames(args: VideoArgs, frame_dir: Path, reporter: RichReporter) -> tuple[list[str], dict[str, Any]]:
+    """The sharpest frame per segment of the video into ``frame_dir``: (names, summary fields)."""
+    from components.sfm.video import extract_frames
+
+    t0 = time.perf_counter()
+    reporter.start("frames", None)
+    frames = extract_frames(args.data, frame_dir, args.num_frames, progress=reporter.update)
+    names = [p.name for p in frames.paths]
+    reporter.finish(
+        "frames",
+        time.perf_counter() - t0,
+        f"{len(names)} of {frames.total_frames} frames (sharpest per segment)",
+    )
+    return names, {
+        "video": str(args.data.absolute()),
+        "video_frames": frames.total_frames,
+        "fps": frames.fps,
+        "frame_indices": frames.indices,
+        "frame_sharpness": [round(s, 2) for s in frames.sharpness],
+    }
+
+
 def process(args: ImagesArgs | VideoArgs, console: Console | None = None) -> dict[str, Any]:
     """Run the command; returns the summary written to ``sfm_summary.json``."""
     console = console or Console()
     _check_common(args)
     is_video = isinstance(args, VideoArgs)
     if is_video:
-        if args.num_frames < 2:
-            raise ConfigError(
-                f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 150"
-            )
-        if not args.data.is_file():
-            raise ConfigError(
-                "video file not found" if not args.data.exists() else "--data is a folder, not a video file",
-                where=str(args.data),
-                fix="pass a video file (use `td-process-data images` for a folder of photos)",
-            )
+        _check_video(args)
     else:
         names = list_images(args.data)
     t_start = time.perf_counter()
@@ -148,25 +174,8 @@ def process(args: ImagesArgs | VideoArgs, console: Console | None = None) -> dic
         reporter = RichReporter(console, progress if console.is_terminal else None)
         work = tmp / ".work"
         if is_video:
-            from components.sfm.video import extract_frames
-
-            t0 = time.perf_counter()
-            reporter.start("frames", None)
-            frames = extract_frames(args.data, work / "frames", args.num_frames, progress=reporter.update)
             image_dir = work / "frames"
-            names = [p.name for p in frames.paths]
-            extra = {
-                "video": str(args.data.absolute()),
-                "video_frames": frames.total_frames,
-                "fps": frames.fps,
-                "frame_indices": frames.indices,
-                "frame_sharpness": [round(s, 2) for s in frames.sharpness],
-            }
-            reporter.finish(
-                "frames",
-                time.perf_counter() - t0,
-                f"{len(names)} of {frames.total_frames} frames (sharpest per segment)",
-            )
+            names, extra = _frames(args, image_dir, reporter)
         else:
             image_dir = args.data
         result = run_sfm(image_dir, names, tmp, work / "sfm", args.sfm, reporter, ordered=is_video)
