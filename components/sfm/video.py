@@ -87,6 +87,26 @@ def extract_frames(
     video = Path(video)
     if not video.is_file():
         raise DataError("video file not found", where=str(video), fix="check the --data path")
+    fps, scores = _score_frames(video, progress)
+    if len(scores) < 2:
+        raise DataError(
+            f"video has {len(scores)} readable frame(s); at least 2 are needed",
+            where=str(video),
+            fix="check the file plays, or re-encode it",
+        )
+    chosen = choose_frames(np.asarray(scores), num_frames)
+    paths = _write_frames(video, set(chosen), out_dir, suffix, progress)
+    if len(paths) != len(chosen):
+        raise DataError(
+            f"video ended early on the second read ({len(paths)} of {len(chosen)} frames)",
+            where=str(video),
+            fix="re-encode the video; its frame index is inconsistent",
+        )
+    return VideoFrames(paths, chosen, len(scores), fps, [scores[i] for i in chosen])
+
+
+def _score_frames(video: Path, progress: Callable[[int, int], None] | None) -> tuple[float, list[float]]:
+    """First pass: (fps, sharpness of every readable frame)."""
     cap = _open(video)
     fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
     expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
@@ -99,20 +119,19 @@ def extract_frames(
         if progress is not None:
             progress(len(scores), max(expected, len(scores)))
     cap.release()
-    if len(scores) < 2:
-        raise DataError(
-            f"video has {len(scores)} readable frame(s); at least 2 are needed",
-            where=str(video),
-            fix="check the file plays, or re-encode it",
-        )
-    chosen = choose_frames(np.asarray(scores), num_frames)
-    want = set(chosen)
+    return fps, scores
+
+
+def _write_frames(
+    video: Path, want: set[int], out_dir: Path, suffix: str, progress: Callable[[int, int], None] | None
+) -> list[Path]:
+    """Second pass: encode the frames whose index is in ``want``, in order."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths: list[Path] = []
     cap = _open(video)
     idx = 0
     params = [cv2.IMWRITE_JPEG_QUALITY, 95] if suffix.lower() in (".jpg", ".jpeg") else []
-    while len(paths) < len(chosen):
+    while len(paths) < len(want):
         ok, frame = cap.read()
         if not ok or frame is None:
             break
@@ -124,13 +143,7 @@ def extract_frames(
             path.write_bytes(enc.tobytes())
             paths.append(path)
             if progress is not None:
-                progress(len(paths), len(chosen))
+                progress(len(paths), len(want))
         idx += 1
     cap.release()
-    if len(paths) != len(chosen):
-        raise DataError(
-            f"video ended early on the second read ({len(paths)} of {len(chosen)} frames)",
-            where=str(video),
-            fix="re-encode the video; its frame index is inconsistent",
-        )
-    return VideoFrames(paths, chosen, len(scores), fps, [scores[i] for i in chosen])
+    return paths

@@ -86,11 +86,15 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
         summary["medium"] = None
         if medium is not None and medium.has_medium and (medium.is_field or medium.renders_with_gaussians):
             summary["medium"] = export_medium(
-                medium, tmp, transform, args.medium_resolution, args.light_resolution,
-                model=model,
-            )  # fmt: skip
+                medium, tmp, transform, args.medium_resolution, args.light_resolution, model=model
+            )
         summary["seconds"] = round(time.perf_counter() - t0, 3)
         write_json(tmp / "export.json", summary)
+    _print_summary(console, args, summary)
+    return summary
+
+
+def _print_summary(console: Console, args: ExportArgs, summary: dict[str, Any]) -> None:
     out = args.output_dir
     mb = summary["ply_bytes"] / 1e6
     console.print(
@@ -109,7 +113,6 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
         console.print(
             f"wrote {out / 'medium.npz'} (per-Gaussian extinction and light of the gaussian-bound medium)"
         )
-    return summary
 
 
 def main(argv: list[str] | None = None) -> None:
