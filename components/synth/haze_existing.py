@@ -275,6 +275,26 @@ def _solve_beta(cfg: HazeConfig, taus: list[np.ndarray]) -> float:
     return -math.log(target) / med
 
 
+def _intrinsics(scene: SceneData, i: int) -> dict[str, float | int]:
+    cams = scene.cameras
+    return {"fl_x": float(cams.fx[i]), "fl_y": float(cams.fy[i]), "cx": float(cams.cx[i]),
+            "cy": float(cams.cy[i]), "w": int(cams.width[i]), "h": int(cams.height[i])}  # fmt: skip
+
+
+def _write_transforms(scene: SceneData, root: Path, frames: list[dict[str, Any]]) -> None:
+    """transforms.json with the source's splits, and its seed points (points3d.ply) when it has any."""
+    transforms: dict[str, Any] = {"camera_model": "PINHOLE", "frames": frames}
+    if scene.points is not None and len(scene.points):
+        rgb = None
+        if scene.point_colors is not None:
+            rgb = np.clip(scene.point_colors.numpy() * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        write_ply_points(root / "points3d.ply", scene.points.double().numpy(), rgb)
+        transforms["ply_file_path"] = "points3d.ply"
+    transforms["train_filenames"] = [frames[i]["file_path"] for i in scene.train_indices]
+    transforms["test_filenames"] = [frames[i]["file_path"] for i in scene.test_indices]
+    write_json(root / "transforms.json", transforms)
+
+
 def _write(
     cfg: HazeConfig,
     scene: SceneData,
@@ -300,28 +320,12 @@ def _write(
         write_rgb(root / files["clean_file_path"], read_image(scene.image_paths[i]))
         write_map(root / files["gt_depth_file_path"], depths[i])
         write_map(root / files["gt_transmittance_file_path"], T)
-        cams = scene.cameras
-        intr = {
-            "fl_x": float(cams.fx[i]),
-            "fl_y": float(cams.fy[i]),
-            "cx": float(cams.cx[i]),
-            "cy": float(cams.cy[i]),
-            "w": int(cams.width[i]),
-            "h": int(cams.height[i]),
-        }
-        frames.append(frame_entry(cams.camtoworlds[i].double().numpy(), files, intr))
+        frames.append(
+            frame_entry(scene.cameras.camtoworlds[i].double().numpy(), files, _intrinsics(scene, i))
+        )
         all_T.append(T.astype(np.float32).ravel())
         mean_T.append(float(T.mean()))
-    transforms: dict[str, Any] = {"camera_model": "PINHOLE", "frames": frames}
-    if scene.points is not None and len(scene.points):
-        rgb = None
-        if scene.point_colors is not None:
-            rgb = np.clip(scene.point_colors.numpy() * 255.0 + 0.5, 0, 255).astype(np.uint8)
-        write_ply_points(root / "points3d.ply", scene.points.double().numpy(), rgb)
-        transforms["ply_file_path"] = "points3d.ply"
-    transforms["train_filenames"] = [frames[i]["file_path"] for i in scene.train_indices]
-    transforms["test_filenames"] = [frames[i]["file_path"] for i in scene.test_indices]
-    write_json(root / "transforms.json", transforms)
+    _write_transforms(scene, root, frames)
     T_all = np.concatenate(all_T)
     return {
         "generator": "td-synth haze",
