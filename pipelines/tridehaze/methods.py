@@ -121,9 +121,22 @@ def tri_dehaze_quality() -> TrainerConfig:
     )  # fmt: skip
 
 
-def _tri_dehaze_variant(name: str, max_steps: int, **sub_configs: dict[str, Any]) -> TrainerConfig:
+def _tri_dehaze_variant(
+    name: str,
+    max_steps: int,
+    model: dict[str, Any] | None = None,
+    densify: dict[str, Any] | None = None,
+    medium: dict[str, Any] | None = None,
+    composite: dict[str, Any] | None = None,
+) -> TrainerConfig:
     """tri-dehaze with fields of its pipeline's sub-configs replaced (``medium=dict(resolution=32)``)."""
     base = tri_dehaze()
     p = base.pipeline
-    changed = {group: replace(getattr(p, group), **fields) for group, fields in sub_configs.items()}
-    return replace(base, method_name=name, max_steps=max_steps, pipeline=replace(p, **changed))
+    pipeline = replace(
+        p,
+        model=replace(p.model, **(model or {})),
+        densify=replace(p.densify, **(densify or {})),
+        medium=replace(p.medium, **(medium or {})),
+        composite=replace(p.composite, **(composite or {})),
+    )
+    return replace(base, method_name=name, max_steps=max_steps, pipeline=pipeline)
