@@ -184,3 +184,21 @@ def test_auto_backend_is_resolved_saved_and_logged(scenes, tmp_path):
         and probe["backend"] == "triplane"
         and probe["confidence"] >= MIN_CONFIDENCE
     )
+
+
+def test_resolve_returns_a_new_config_and_leaves_the_preset_alone(scenes):
+    """The probe runs in ``resolve`` (before setup): the caller's config keeps ``auto``, the returned
+    one names the medium, and a concrete backend resolves to itself with no decision."""
+    import torch
+
+    from components.data.loader import load_scene
+    from pipelines.engine.datamanager import DataManager
+
+    cfg = parse_args(["tri-dehaze-fast", "--data", str(scenes["courtyard", "patchy"])])
+    dm = DataManager(load_scene(cfg.dataset), torch.device("cpu"), seed=0)
+    resolved, decisions = cfg.pipeline.resolve(dm, seed=0)
+    assert cfg.pipeline.medium.backend == "auto" and resolved is not cfg.pipeline
+    assert resolved.medium.backend == "triplane" and len(decisions) == 1
+    assert decisions[0].data["haze_probe"]["backend"] == "triplane"
+    again, none = resolved.resolve(dm, seed=0)
+    assert again is resolved and none == []
