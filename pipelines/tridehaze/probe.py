@@ -375,7 +375,9 @@ def _classify(out: HazeProbe, clear_share: float) -> None:
             f"(F {out.variation_f:.1f} > {VARYING_F:g}, effect {out.variation_effect:.2f} > {VARYING_EFFECT:g})"
         )
     else:
-        out.reason = (
-            f"one extinction explains every view pair (F {out.variation_f:.1f} <= {VARYING_F:g} or "
-            f"effect {out.variation_effect:.2f} <= {VARYING_EFFECT:g})"
-        )
+        held = []  # only the conditions that hold (either suffices)
+        if out.variation_f <= VARYING_F:
+            held.append(f"F {out.variation_f:.1f} <= {VARYING_F:g}")
+        if out.variation_effect <= VARYING_EFFECT:
+            held.append(f"effect {out.variation_effect:.2f} <= {VARYING_EFFECT:g}")
+        out.reason = f"one extinction explains every view pair ({', '.join(held)})"
