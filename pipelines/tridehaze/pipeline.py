@@ -134,9 +134,8 @@ class GaussianPipelineConfig(PipelineConfig):
         if self.medium.backend != "auto":
             return self, []
         train = datamanager.train_indices
-        probe = probe_haze(
-            datamanager, train, datamanager.scene.points, seed, dcp_per_view(datamanager, train)
-        )
+        dcp = dcp_per_view(datamanager, train, keep=True)  # setup() takes them for the priors
+        probe = probe_haze(datamanager, train, datamanager.scene.points, seed, dcp)
         resolved = replace(self, medium=replace(self.medium, backend=probe.backend))
         return resolved, [Decision(probe.message(), {"haze_probe": probe.to_dict()})]
 

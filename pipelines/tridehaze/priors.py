@@ -9,6 +9,7 @@ pseudo-depth comes from files, the dark channel, the SfM points or a short haze-
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,8 +46,24 @@ class MediumEstimate:
     beta: float | None  # 1 / scene unit; None when there are no seed points to measure it with
 
 
-def dcp_per_view(dm: DataManager, indices: list[int]) -> dict[int, DCPResult]:
-    return {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
+_HANDED_OVER: weakref.WeakKeyDictionary[DataManager, tuple[tuple[int, ...], dict[int, DCPResult]]] = (
+    weakref.WeakKeyDictionary()
+)
+"""Dark channels kept by a ``keep=True`` call for the next call on the same data manager and views."""
+
+
+def dcp_per_view(dm: DataManager, indices: list[int], keep: bool = False) -> dict[int, DCPResult]:
+    """The dark-channel estimate of each view. ``keep``: hold the result for the next call on the
+    same views, which takes it instead of recomputing (the haze probe in ``resolve()`` hands its
+    dark channels to the pipeline's setup; held only until then, they cost no memory in training)."""
+    key = tuple(indices)
+    held = _HANDED_OVER.pop(dm, None)
+    if held is not None and held[0] == key:
+        return held[1]
+    out = {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
+    if keep:
+        _HANDED_OVER[dm] = (key, out)
+    return out
 
 
 def dehazed_views(dm: DataManager, dcp: dict[int, DCPResult]) -> dict[int, Tensor]:

@@ -202,3 +202,23 @@ def test_resolve_returns_a_new_config_and_leaves_the_preset_alone(scenes):
     assert decisions[0].data["haze_probe"]["backend"] == "triplane"
     again, none = resolved.resolve(dm, seed=0)
     assert again is resolved and none == []
+
+
+def test_the_probes_dark_channels_are_reused_by_setup(scenes, monkeypatch):
+    """resolve() + setup() estimate each training view's dark channel once, not twice."""
+    import torch
+
+    from components.data.loader import load_scene
+    from pipelines.engine.datamanager import DataManager
+    from pipelines.tridehaze import priors
+
+    cfg = parse_args(["tri-dehaze-fast", "--data", str(scenes["courtyard", "patchy"]),
+                      "--pipeline.rasterizer.backend", "torch"])  # fmt: skip
+    dm = DataManager(load_scene(cfg.dataset), torch.device("cpu"), seed=0)
+    calls = []
+    real = priors.estimate_dcp
+    monkeypatch.setattr(priors, "estimate_dcp", lambda img: (calls.append(1), real(img))[1])
+    resolved, _ = cfg.pipeline.resolve(dm, seed=0)
+    resolved.setup(dm, seed=0, max_steps=10)
+    assert len(calls) == len(dm.train_indices)
+    assert dm not in priors._HANDED_OVER  # taken by setup, not held through training
