@@ -1,6 +1,6 @@
 """The contract between the training engine and a pipeline.
 
-The trainer, the evaluator and (later) the viewer only talk to :class:`Pipeline`; they never
+The trainer, the evaluator and the viewer only talk to :class:`Pipeline`; they never
 know which model, medium or rasterizer a method uses. Outputs are named tensors so that a
 viewer can list whatever a pipeline returns.
 """

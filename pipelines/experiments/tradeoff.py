@@ -64,10 +64,14 @@ def knob_flags(settings: dict[str, str]) -> tuple[list[str], int | None]:
     return flags, steps
 
 
+def _scaled(steps: int, base_steps: int) -> int:
+    """A step count given for the default budget (BASE_STEPS), rescaled to ``base_steps``."""
+    return max(1, round(steps * base_steps / BASE_STEPS))
+
+
 def _variant(name: str, settings: dict[str, str], base_steps: int) -> Variant:
     overrides, steps = knob_flags(settings)
-    # step counts scale with the budget (the knob's values are for BASE_STEPS)
-    scaled = base_steps if steps is None else max(1, round(steps * base_steps / BASE_STEPS))
+    scaled = base_steps if steps is None else _scaled(steps, base_steps)
     return Variant(name, BASE_METHOD, tuple(overrides), label=name, max_steps=scaled)
 
 
@@ -111,8 +115,9 @@ def grid(
         if name not in COMBOS:
             raise ValueError(f"unknown combination {name!r}; use one of {', '.join(COMBOS)}")
         preset = COMBOS[name]()
-        steps = max(1, round(preset.max_steps * base_steps / BASE_STEPS))
-        variants.append(Variant(name, preset.method_name, label=name, max_steps=steps))
+        variants.append(
+            Variant(name, preset.method_name, label=name, max_steps=_scaled(preset.max_steps, base_steps))
+        )
     return variants
 
 

@@ -16,7 +16,7 @@ from pipelines.engine.live_view import LiveViewProvider
 from pipelines.viewer.ports import check_port_free
 from tridehaze_plugin.errors import UserError
 
-__all__ = ["TrainingViewer", "check_port_free", "start_training_viewer", "wants_viewer"]
+__all__ = ["TrainingViewer", "check_port_free", "wants_viewer"]
 
 if TYPE_CHECKING:
     from pipelines.engine.config import TrainerConfig
@@ -34,32 +34,6 @@ def wants_viewer(vis: str) -> bool:
     return interactive and not os.environ.get("CI") and "PYTEST_CURRENT_TEST" not in os.environ
 
 
-def start_training_viewer(
-    cfg: TrainerConfig, pipeline: Pipeline, datamanager: DataManager, console: Console
-) -> Viewer | None:
-    """The viewer for a training run, started, or None when ``--vis`` resolves to none.
-
-    With ``--vis auto`` a port in use only skips the viewer (with a warning); an explicit
-    ``--vis viewer`` makes it an error.
-    """
-    if not wants_viewer(cfg.vis):
-        return None
-    from pipelines.viewer.server import Viewer
-
-    viewer = Viewer(
-        cfg.viewer, pipeline, datamanager, training=True, console=console, max_steps=cfg.max_steps
-    )
-    try:
-        url = viewer.start()
-    except UserError as exc:
-        if cfg.vis == "viewer":
-            raise
-        console.print(f"[yellow]viewer not started[/]: {exc.one_line()}", highlight=False)
-        return None
-    console.print(f"viewer: [bold]{url}[/] (open in a browser)", highlight=False)
-    return viewer
-
-
 class TrainingViewer(LiveViewProvider):
     """The browser viewer as the trainer's live view (``--vis viewer|auto``)."""
 
@@ -70,4 +44,24 @@ class TrainingViewer(LiveViewProvider):
     def start(
         self, cfg: TrainerConfig, pipeline: Pipeline, datamanager: DataManager, console: Console
     ) -> Viewer | None:
-        return start_training_viewer(cfg, pipeline, datamanager, console)
+        """The viewer for a training run, started, or None when ``--vis`` resolves to none.
+
+        With ``--vis auto`` a port in use only skips the viewer (with a warning); an explicit
+        ``--vis viewer`` makes it an error.
+        """
+        if not wants_viewer(cfg.vis):
+            return None
+        from pipelines.viewer.server import Viewer
+
+        viewer = Viewer(
+            cfg.viewer, pipeline, datamanager, training=True, console=console, max_steps=cfg.max_steps
+        )
+        try:
+            url = viewer.start()
+        except UserError as exc:
+            if cfg.vis == "viewer":
+                raise
+            console.print(f"[yellow]viewer not started[/]: {exc.one_line()}", highlight=False)
+            return None
+        console.print(f"viewer: [bold]{url}[/] (open in a browser)", highlight=False)
+        return viewer
