@@ -59,9 +59,7 @@ def main() -> int:
         run(["td-train", method, "--data", str(scene), "--output-dir", str(out / "runs"), "--timestamp", method,
              "--max-steps", str(args.steps), "--seed", "0", "--threads", "1", "--vis", "none",
              "--pipeline.rasterizer.backend", "cpu", "--no-eval-at-end"])  # fmt: skip
-        ckpts = sorted((out / "runs").glob(f"*/{method}/{method}/checkpoints/step-*.ckpt"))
-        if not ckpts:
-            ckpts = sorted((out / "runs").rglob(f"{method}/checkpoints/step-*.ckpt"))
+        ckpts = sorted((out / "runs" / scene.name / method / method / "checkpoints").glob("step-*.ckpt"))
         payload = torch.load(ckpts[-1], map_location="cpu", weights_only=True)
         hashes[method] = tensor_hashes({k: v for k, v in payload.items() if k != "config"})
         print(f"{method}: {len(hashes[method])} tensors from {ckpts[-1]}")
