@@ -57,7 +57,7 @@ def variants() -> dict[str, tuple[str, dict]]:
     }
 
 
-def build(method: str, over: dict, data: Path, points: int, backend: str):
+def build(method: str, over: dict, data: Path, points: int, backend: str, device: torch.device):
     cfg = REGISTRY.get("method", method).make_config()
     p = cfg.pipeline
     p = replace(
@@ -69,16 +69,63 @@ def build(method: str, over: dict, data: Path, points: int, backend: str):
     )
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)
-    dm = DataManager(scene, torch.device("cpu"), seed=0)
+    dm = DataManager(scene, device, seed=0)
     pipe = cfg.pipeline.setup(dm, seed=0, max_steps=cfg.max_steps)
     opt = Optimizers(pipe.param_groups(), cfg.optimizer, cfg.max_steps)
     return pipe, opt
 
 
-def iteration(pipe, opt, step: int) -> float:
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def iteration(pipe, opt, step: int, device: torch.device) -> float:
+    """One training iteration, timed to its last kernel (CUDA runs asynchronously)."""
+    sync(device)
     t0 = time.perf_counter()
     optimization_step(pipe, opt, step)
+    sync(device)
     return time.perf_counter() - t0
+
+
+def profile(pipe, opt, step: int, device: torch.device, iterations: int, out: Path) -> list[dict]:
+    """torch.profiler over a few iterations: where the time of a Tri-DehazeGS step goes.
+
+    The pipeline labels its stages (``td.rasterize``, ``td.medium``, ``td.composite+loss``) with
+    ``record_function``; the table lists those labels and the most expensive operators by device
+    time (CUDA) or CPU time.
+    """
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    for k in range(2):  # warm-up outside the trace
+        iteration(pipe, opt, step + k, device)
+    with torch_profile(activities=activities) as prof:
+        for k in range(iterations):
+            iteration(pipe, opt, step + 2 + k, device)
+    key = "device_time_total" if device.type == "cuda" else "cpu_time_total"
+    rows = []
+    for ev in prof.key_averages():
+        total = getattr(ev, key, 0.0) or 0.0
+        rows.append(
+            {
+                "name": ev.key,
+                "calls": ev.count // iterations,
+                "ms_per_iteration": round(total / 1000 / iterations, 3),
+                "cpu_ms_per_iteration": round(ev.cpu_time_total / 1000 / iterations, 3),
+            }
+        )
+    rows.sort(key=lambda r: -r["ms_per_iteration"])
+    labels = [r for r in rows if r["name"].startswith("td.")]
+    top = [r for r in rows if not r["name"].startswith(("td.", "ProfilerStep"))][:25]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".profile.json").write_text(json.dumps({"stages": labels, "ops": top}, indent=2))
+    print(f"\nprofile ({iterations} iterations, {key}):")
+    for r in labels + top:
+        print(f"  {r['name'][:60]:60s} {r['calls']:5d} {r['ms_per_iteration']:9.3f} ms")
+    return labels + top
 
 
 def stride_quality(config_path: Path, strides: list[int | None]) -> list[dict]:
@@ -147,10 +194,19 @@ def main() -> None:
         "--step-offset", type=int, default=1000, help="steps are timed from here (Stage II, SH on)"
     )
     ap.add_argument("--backend", default="auto")
+    ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    ap.add_argument("--variants", nargs="+", default=None, help="subset of the variant names (default: all)")
+    ap.add_argument(
+        "--profile", type=int, default=0, metavar="N", help="also profile N tri-dehaze iterations"
+    )
     ap.add_argument("--out", type=Path, default=RESULTS / "iteration_cost")
     ap.add_argument("--quality-run", type=Path, default=None, help="trained tri-dehaze RUN/config.yml")
     args = ap.parse_args()
     load_all()
+    device = torch.device(args.device)
+    chosen = {k: v for k, v in variants().items() if args.variants is None or k in args.variants}
+    if "vanilla-gs" not in chosen:
+        ap.error(f"--variants must include vanilla-gs (the baseline); known: {list(variants())}")
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "scene"
         generate_scene(
@@ -159,16 +215,28 @@ def main() -> None:
                 width=args.width, height=args.height, num_points=args.points, samples=32,
             )
         )  # fmt: skip
-        built = {name: build(m, o, data, args.points, args.backend) for name, (m, o) in variants().items()}
+        built = {
+            name: build(m, o, data, args.points, args.backend, device) for name, (m, o) in chosen.items()
+        }
         times: dict[str, list[float]] = {name: [] for name in built}
         names = list(built)
         for name in names:  # warm-up: compile kernels, fill caches
-            iteration(*built[name], args.step_offset)
+            iteration(*built[name], args.step_offset, device)
         for r in range(args.rounds):
             for name in names[r % len(names) :] + names[: r % len(names)]:
                 for k in range(args.steps):
-                    times[name].append(iteration(*built[name], args.step_offset + 1 + r * args.steps + k))
+                    step = args.step_offset + 1 + r * args.steps + k
+                    times[name].append(iteration(*built[name], step, device))
         n_gauss = {name: built[name][0].model.num_gaussians for name in names}
+        backends = {name: built[name][0].rasterizer.name for name in names}
+        peak_gib = None
+        if device.type == "cuda":
+            peak_gib = round(torch.cuda.max_memory_allocated(device) / 2**30, 2)
+        profiled = []
+        if args.profile:
+            name = next(n for n in names if n.startswith("tri-dehaze"))
+            step = args.step_offset + 1 + args.rounds * args.steps
+            profiled = profile(*built[name], step, device, args.profile, args.out)
     base = statistics.median(times["vanilla-gs"])
     rows = []
     for name in names:
@@ -180,6 +248,7 @@ def main() -> None:
                 "min_s": round(min(times[name]), 4),
                 "ratio_to_vanilla": round(med / base, 3),
                 "gaussians": n_gauss[name],
+                "rasterizer": backends[name],
                 "samples": len(times[name]),
             }
         )
@@ -189,9 +258,14 @@ def main() -> None:
         "views": args.views,
         "threads": torch.get_num_threads(),
         "backend": args.backend,
+        "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+        "peak_gpu_memory_gib_all_variants": peak_gib,
         "timed_from_step": args.step_offset,
     }
-    print(f"{args.width}x{args.height}, {rows[0]['gaussians']} Gaussians, {torch.get_num_threads()} threads")
+    print(
+        f"{args.width}x{args.height}, {rows[0]['gaussians']} Gaussians, {meta['device']}, "
+        f"rasterizer {rows[0]['rasterizer']}, {torch.get_num_threads()} threads"
+    )
     print(f"{'variant':38s} {'median s':>9s} {'min s':>8s} {'x vanilla':>10s}")
     for row in rows:
         print(
@@ -213,7 +287,7 @@ def main() -> None:
             )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(
-        json.dumps({"meta": meta, "rows": rows, "quality": quality}, indent=2)
+        json.dumps({"meta": meta, "rows": rows, "quality": quality, "profile": profiled}, indent=2)
     )
     with args.out.with_suffix(".csv").open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))

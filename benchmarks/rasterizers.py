@@ -64,6 +64,7 @@ def machine() -> dict:
         "cpu": cpu,
         "cores": len(os.sched_getaffinity(0)),
         "torch": torch.__version__,
+        "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None,
         "python": platform.python_version(),
     }
 
@@ -109,7 +110,7 @@ def bench_case(
     pairs = None
     if CpuRasterizer.available():
         pairs = int(CpuRasterizer().blended_per_pixel(**scene, width=width, height=height, sh_degree=3).sum())
-    rasts = {b: RasterizerConfig(backend=b).setup() for b in backends}
+    rasts = {b: RasterizerConfig(backend=b).setup(device=device_of(b)) for b in backends}
     inputs = {b: leaves(b) for b in backends}
     runs = {(b, bw): timer(rasts[b], inputs[b], width, height, bw) for b in backends for bw in (False, True)}
     for b in backends:

@@ -1,4 +1,9 @@
-"""Suite-wide test settings."""
+"""Suite-wide test settings.
+
+``--device cuda`` runs the method tests (pipeline, medium, compositing, gradient policies, losses,
+stability) with their tensors and training runs on the GPU, so anything CPU-only by accident (a
+tensor made on the default device, a numpy round trip) fails there; the default, cpu, is what CI runs.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +11,45 @@ import os
 from pathlib import Path
 
 import pytest
+import torch
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("TRIDEHAZE_SHARED", REPO.parent / "shared"))
 """The team's shared folder (real scenes); CI clones the repo with ``shared/`` beside it."""
 REAL_DATA = SHARED / "data" / "real"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--device",
+        default="cpu",
+        help="torch device for the tests that take one, e.g. cuda for the GPU run of the suite",
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    _device(config)  # a bad --device stops the run before collection: a GPU run must not pass on cpu
+
+
+def _device(config: pytest.Config) -> torch.device:
+    """``--device`` as a ``torch.device``; asking for CUDA without one is a usage error, not a skip."""
+    name = config.getoption("--device")
+    try:
+        device = torch.device(name)
+    except RuntimeError as exc:
+        raise pytest.UsageError(f"--device {name!r} is not a torch device ({exc})") from None
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise pytest.UsageError(f"--device {name} was asked for but CUDA is not available here")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise pytest.UsageError(f"--device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
+    return device
+
+
+@pytest.fixture(scope="session")
+def device(pytestconfig: pytest.Config) -> torch.device:
+    """The torch device the method tests put their tensors, modules and training runs on (``--device``)."""
+    return _device(pytestconfig)
 
 
 def require_real(scene: str) -> Path:

@@ -75,6 +75,11 @@ class Rasterizer(abc.ABC):
         """Why :meth:`available` is False (one short phrase), or None when it is available."""
         return None if cls.available() else "not available here"
 
+    @classmethod
+    def runs_on(cls, device: torch.device) -> bool:
+        """Whether it renders tensors on ``device`` (``auto`` only picks a backend that does)."""
+        return True
+
     @abc.abstractmethod
     def rasterize(
         self,
@@ -131,11 +136,20 @@ def check_inputs(
         raise ValueError(f"colors must be [N, D] or [C, N, D], got {list(colors.shape)}")
 
 
-def resolve_backend(name: str, registry: Registry | None = None) -> str:
-    """Turn ``auto`` into the best registered and available backend; check explicit names."""
+def resolve_backend(name: str, registry: Registry | None = None, device: torch.device | None = None) -> str:
+    """Turn ``auto`` into the best registered and available backend for ``device`` (the run's;
+    None: CUDA when available, else CPU); check explicit names."""
     registry = registry or REGISTRY
+    if device is None:
+        device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name != "auto":
         cls = registry.get("rasterizer", name)
+        if cls.available() and not cls.runs_on(device):
+            raise ConfigError(
+                f"rasterizer backend {name!r} does not render on {device.type} tensors",
+                where="--pipeline.rasterizer.backend",
+                fix="use auto, or the device this backend needs (--device cuda for gsplat)",
+            )
         if not cls.available():
             reason = cls.unavailable_reason() or "not available here"
             if cls.fallback and ("rasterizer", cls.fallback) in registry:
@@ -153,9 +167,8 @@ def resolve_backend(name: str, registry: Registry | None = None) -> str:
     for cand in AUTO_ORDER:
         if ("rasterizer", cand) not in registry:
             continue
-        if cand == "gsplat" and not torch.cuda.is_available():
-            continue
-        if registry.get("rasterizer", cand).available():
+        cls = registry.get("rasterizer", cand)
+        if cls.runs_on(device) and cls.available():
             return cand
     raise ConfigError("no rasterizer backend is available", fix="import components.rasterizers first")
 
@@ -166,7 +179,7 @@ class RasterizerConfig(ComponentConfig):
 
     backend: Annotated[str, RegistryChoice("rasterizer", allow=("auto",))] = "auto"
     """Backend: ``auto``, ``torch`` (pure PyTorch reference), ``cpu`` or ``gsplat`` once registered.
-    ``auto`` picks gsplat when it is installed and CUDA is available, else cpu, else torch."""
+    ``auto`` picks gsplat for a run on CUDA when it is installed, else cpu, else torch."""
     near_plane: float = 0.01
     """Gaussians whose centre has camera z <= this are culled."""
     far_plane: float = 1e10
@@ -177,7 +190,7 @@ class RasterizerConfig(ComponentConfig):
     """Tile edge in pixels for binning. The image does not depend on it (each Gaussian's box holds
     every pixel its alpha reaches 1/255 in); 16 as gsplat, and what the cpu kernel is tuned for."""
 
-    def setup(self, **kwargs: Any) -> Rasterizer:
-        """Build the backend instance (``auto`` resolved now, in this process)."""
-        name = resolve_backend(self.backend)
+    def setup(self, device: torch.device | None = None, **kwargs: Any) -> Rasterizer:
+        """Build the backend instance (``auto`` resolved now, in this process, for the run's device)."""
+        name = resolve_backend(self.backend, device=device)
         return REGISTRY.get("rasterizer", name)(self, **kwargs)

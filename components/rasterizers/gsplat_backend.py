@@ -5,7 +5,7 @@ kernels on first use. Called in classic mode, non-packed, with expected depth ("
 outputs mean what the ``torch`` reference's do (docs/rasterizer.md). The call and the unpacking of
 its outputs are checked on CPU against a stand-in made of gsplat's PyTorch code
 (``tests/rasterizer/test_gsplat_glue.py``); the CUDA kernels' parity test
-(``tests/rasterizer/test_gsplat_parity.py``, marker ``gpu``) has not yet run on a GPU machine.
+(``tests/rasterizer/test_gsplat_parity.py``, marker ``gpu``) passed on an H100 (docs/gpu.md).
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ class GsplatRasterizer(Rasterizer):
     @classmethod
     def available(cls) -> bool:
         return cls.unavailable_reason() is None
+
+    @classmethod
+    def runs_on(cls, device: torch.device) -> bool:
+        return device.type == "cuda"
 
     @classmethod
     def unavailable_reason(cls) -> str | None:

@@ -52,8 +52,9 @@ class StepResult:
     """What one training step produced."""
 
     loss: Tensor  # [] scalar with grad
-    metrics: dict[str, float] = field(default_factory=dict)
-    """Scalar diagnostics for the progress bar and logs (already detached floats)."""
+    metrics: dict[str, float | Tensor] = field(default_factory=dict)
+    """Scalar diagnostics for the progress bar and logs: floats or detached 0-dim tensors. The trainer
+    reads the tensors in one transfer per step (a ``float()`` each would stall a GPU once per value)."""
 
 
 @dataclass

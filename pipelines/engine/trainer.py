@@ -83,6 +83,16 @@ def optimization_step(
     return result, True
 
 
+def scalars(values: dict[str, float | torch.Tensor]) -> dict[str, float]:
+    """Floats of a step's diagnostics, with all tensor values read back in one transfer."""
+    keys = [k for k, v in values.items() if isinstance(v, torch.Tensor)]
+    if not keys:
+        return {k: float(v) for k, v in values.items()}
+    dev = values[keys[0]].device
+    read = torch.stack([values[k].reshape(()).to(dev, torch.float64) for k in keys]).tolist()
+    return {k: (read[keys.index(k)] if k in keys else float(v)) for k, v in values.items()}
+
+
 MAX_BAD_STEPS = 25
 """Consecutive steps with a non-finite loss or gradient after which training stops."""
 
@@ -262,7 +272,7 @@ class Trainer:
         self._log_decisions(step + 1)
         dt = time.perf_counter() - t0
         self._its = 1.0 / dt if self._its == 0 else 0.9 * self._its + 0.1 / dt
-        self._metrics = {"loss": float(result.loss.detach()), **result.metrics}
+        self._metrics = scalars({"loss": result.loss.detach(), **result.metrics})
         return True
 
     def _bar_fields(self) -> dict[str, float]:
@@ -315,6 +325,8 @@ class Trainer:
             final["stopped_early_at"] = done
         if self.skipped_steps:
             final["skipped_nonfinite_steps"] = self.skipped_steps
+        if self.device.type == "cuda":  # the figure a user sizes a GPU by
+            final["peak_gpu_memory_gib"] = torch.cuda.max_memory_allocated(self.device) / 2**30
         final.update({f"train_{k}": v for k, v in self._metrics.items()})
         if cfg.eval_at_end and self.datamanager.test_indices:
             with self._lock:
@@ -338,11 +350,10 @@ class Trainer:
                 f.write(json.dumps({"step": step, **record}) + "\n")
 
     def _finite(self, loss: torch.Tensor) -> bool:
-        if not bool(torch.isfinite(loss.detach())):
-            return False
-        return all(
-            bool(torch.isfinite(p.grad).all()) for p in self.pipeline.parameters() if p.grad is not None
-        )
+        """Loss and every gradient finite, decided on the device and read back once."""
+        flags = [torch.isfinite(loss.detach())]
+        flags += [torch.isfinite(p.grad).all() for p in self.pipeline.parameters() if p.grad is not None]
+        return bool(torch.stack(flags).all())
 
     def _skip_bad_step(self, step: int) -> None:
         """Drop a step whose loss or gradient is not finite; stop after too many in a row."""

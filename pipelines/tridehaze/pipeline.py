@@ -13,6 +13,7 @@ from typing import Annotated, Literal
 
 import torch
 from torch import Tensor, nn
+from torch.profiler import record_function
 
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
@@ -189,7 +190,7 @@ class GaussianPipeline(Pipeline):
         self.max_steps = max_steps
         self.freeze_step = scaled_step(config.freeze_step, config.freeze_fraction, max_steps)
         self.hold_steps = scaled_step(None, config.medium_hold_fraction, max_steps)
-        self.rasterizer = config.rasterizer.setup()
+        self.rasterizer = config.rasterizer.setup(device=datamanager.device)
         self.loss_fn = config.loss.setup()
         self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
         self.compositor = MediumCompositor(config.composite)
@@ -273,25 +274,27 @@ class GaussianPipeline(Pipeline):
         if cfg.random_background:
             bg = torch.rand(3, generator=self._gen).to(bg)
         cam = dm.camera(idx)
-        out = self._rasterize(cam, step, bg)
+        with record_function("td.rasterize"):  # stage labels for torch.profiler
+            out = self._rasterize(cam, step, bg)
         clean = out.rgb[0]  # [H, W, 3]
         depth = out.depth[0]  # [H, W, 1]
-        metrics: dict[str, float] = {}
-        med = self._medium(cam, out)
-        if med is not None:
-            hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
-        else:
-            hazy = clean
-        loss, terms = self.loss_fn(hazy, target)
+        metrics: dict[str, Tensor] = {}  # detached scalars; read by the trainer in one transfer
+        with record_function("td.medium"):
+            med = self._medium(cam, out)
+        with record_function("td.composite+loss"):
+            hazy = (
+                clean if med is None else composite(self.policy.apply(clean, med.transmittance, stage), med)
+            )
+            loss, terms = self.loss_fn(hazy, target)
         self._photometric = loss.detach()
-        metrics.update({k: float(v) for k, v in terms.items()})
+        metrics.update({k: v.detach() for k, v in terms.items()})
         prior = self.priors.get(idx)
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
             d = depth[..., 0]
             if cfg.depth_correlation:
                 corr = pearson_depth_loss(d, prior.depth, prior.depth_valid)
                 loss = loss + cfg.lambda_depth * corr
-                metrics["depth_corr"] = 1.0 - float(corr.detach())
+                metrics["depth_corr"] = 1.0 - corr.detach()
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
         if med is not None:
@@ -299,14 +302,14 @@ class GaussianPipeline(Pipeline):
             if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
                 dcp = dcp_transmittance_loss(T, prior.t_dcp)
                 loss = loss + cfg.lambda_dcp * dcp
-                metrics["dcp"] = float(dcp.detach())
+                metrics["dcp"] = dcp.detach()
             reg = self.medium.regularizer() if self._medium_trainable(step) else None
             if reg is not None:
                 loss = loss + reg
-            metrics["mean_T"] = float(T.detach().mean())
+            metrics["mean_T"] = T.detach().mean()
         self._last = out
         self._dens_weight = self._densify_weight(out, med, stage)
-        metrics["psnr"] = float(psnr(hazy.detach(), target))
+        metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
 
     def _densify_weight(self, out: RasterizeOutput, med: MediumRender | None, stage: int) -> Tensor | None:

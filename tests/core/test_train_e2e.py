@@ -23,7 +23,8 @@ W, H, F = 48, 36, 40.0
 
 
 def _render_truth(n_views: int, seed: int = 0):
-    """Images of a known random Gaussian blob cloud seen from a ring of cameras."""
+    """Images of a known random Gaussian blob cloud seen from a ring of cameras (on the cpu: the ground
+    truth written to disk is the same whichever device the runs train on)."""
     g = torch.Generator().manual_seed(seed)
     n = 300
     means = (torch.rand(n, 3, generator=g) - 0.5) * 1.6  # [N, 3]
@@ -59,7 +60,7 @@ def tiny_scene(tmp_path_factory) -> Path:
     return root
 
 
-def _cfg(scene: Path, out: Path, *extra: str):
+def _cfg(scene: Path, out: Path, device: torch.device, *extra: str):
     return parse_args(
         [
             "vanilla-gs",
@@ -67,6 +68,8 @@ def _cfg(scene: Path, out: Path, *extra: str):
             str(scene),
             "--output-dir",
             str(out),
+            "--device",
+            str(device),
             "--max-steps",
             "60",
             "--steps-per-save",
@@ -82,8 +85,8 @@ def _cfg(scene: Path, out: Path, *extra: str):
     )
 
 
-def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path):
-    cfg = _cfg(tiny_scene, tmp_path)
+def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path, device):
+    cfg = _cfg(tiny_scene, tmp_path, device)
     trainer = Trainer(cfg)
     result = trainer.train()
     run = result.run_dir
@@ -116,14 +119,14 @@ def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path):
     assert fresh.run_dir != run  # a new run never reuses (or overwrites) an existing folder
 
 
-def test_same_seed_same_result(tiny_scene, tmp_path):
-    r1 = Trainer(_cfg(tiny_scene, tmp_path / "a", "--max-steps", "15")).train()
-    r2 = Trainer(_cfg(tiny_scene, tmp_path / "b", "--max-steps", "15")).train()
+def test_same_seed_same_result(tiny_scene, tmp_path, device):
+    r1 = Trainer(_cfg(tiny_scene, tmp_path / "a", device, "--max-steps", "15")).train()
+    r2 = Trainer(_cfg(tiny_scene, tmp_path / "b", device, "--max-steps", "15")).train()
     assert r1.metrics["train_loss"] == pytest.approx(r2.metrics["train_loss"], rel=1e-5)
 
 
-def test_truncated_checkpoint_is_a_clear_error(tiny_scene, tmp_path):
-    result = Trainer(_cfg(tiny_scene, tmp_path, "--max-steps", "5")).train()
+def test_truncated_checkpoint_is_a_clear_error(tiny_scene, tmp_path, device):
+    result = Trainer(_cfg(tiny_scene, tmp_path, device, "--max-steps", "5")).train()
     ckpt = latest_checkpoint(result.run_dir)
     data = ckpt.read_bytes()
     bad = tmp_path / "bad.ckpt"
@@ -132,16 +135,18 @@ def test_truncated_checkpoint_is_a_clear_error(tiny_scene, tmp_path):
         load_checkpoint(bad)
 
 
-def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path):
+def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path, device):
     from components.data.images import read_image
     from tridehaze_plugin.cli.render import main as render_main
 
-    result = Trainer(_cfg(tiny_scene, tmp_path, "--max-steps", "5")).train()
+    result = Trainer(_cfg(tiny_scene, tmp_path, device, "--max-steps", "5")).train()
     out = tmp_path / "renders"
     render_main(
         [
             "--load-config",
             str(result.run_dir / "config.yml"),
+            "--device",
+            str(device),
             "--split",
             "train",
             "--outputs",
@@ -159,4 +164,6 @@ def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path):
     with pytest.raises(
         UserError, match="this method renders: clean, hazy, transmittance, scattering, depth, alpha"
     ):
-        render_main(["--load-config", str(result.run_dir / "config.yml"), "--outputs", "sky"])
+        render_main(
+            ["--load-config", str(result.run_dir / "config.yml"), "--device", str(device), "--outputs", "sky"]
+        )

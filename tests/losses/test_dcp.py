@@ -76,15 +76,15 @@ def test_dehaze_recovers_clean_image():
     assert np.abs(dehaze(i, estimate_dcp(i)) - j)[near].mean() < 0.3 * hazy_err
 
 
-def test_transmittance_loss():
-    t = torch.rand(8, 8, requires_grad=True)
+def test_transmittance_loss(device):
+    t = torch.rand(8, 8, device=device, requires_grad=True)
     assert dcp_transmittance_loss(t, t.detach()).item() == 0.0
-    target = torch.zeros(8, 8)
+    target = torch.zeros(8, 8, device=device)
     loss = dcp_transmittance_loss(t, target)
     assert loss.item() == pytest.approx(t.detach().square().mean().item())
     loss.backward()
     assert torch.isfinite(t.grad).all()
-    mask = torch.zeros(8, 8, dtype=torch.bool)
+    mask = torch.zeros(8, 8, dtype=torch.bool, device=device)
     mask[0, 0] = True
     assert dcp_transmittance_loss(t, target, mask).item() == pytest.approx(t[0, 0].item() ** 2)
     assert dcp_transmittance_loss(t, target, torch.zeros_like(mask)).item() == 0.0

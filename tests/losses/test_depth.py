@@ -9,9 +9,9 @@ from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 
 
 @pytest.fixture
-def prior() -> torch.Tensor:
-    g = torch.Generator().manual_seed(0)
-    return torch.rand(24, 32, generator=g) * 10 + 1  # [H, W]
+def prior(device) -> torch.Tensor:
+    g = torch.Generator().manual_seed(0)  # drawn on the cpu: the same values on every device
+    return torch.rand(24, 32, generator=g).to(device) * 10 + 1  # [H, W]
 
 
 @pytest.mark.parametrize("a,b", [(1.0, 0.0), (3.0, -2.0), (0.01, 100.0)])
@@ -24,7 +24,7 @@ def test_pearson_two_for_negative_affine(prior):
 
 
 def test_pearson_invariant_to_scale_and_shift_of_either_input(prior):
-    pred = prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(1)) * 3
+    pred = prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(1)).to(prior.device) * 3
     base = pearson_depth_loss(pred, prior)
     assert 0.05 < base.item() < 1.0
     assert pearson_depth_loss(7 * pred + 3, prior).item() == pytest.approx(base.item(), abs=1e-5)
@@ -43,7 +43,8 @@ def test_pearson_ignores_masked_and_nonfinite_pixels(prior):
 
 
 def test_pearson_gradient_finite_and_nonzero(prior):
-    pred = (prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(2))).requires_grad_()
+    noise = torch.randn(prior.shape, generator=torch.Generator().manual_seed(2)).to(prior.device)
+    pred = (prior + noise).requires_grad_()
     pearson_depth_loss(pred, prior).backward()
     assert torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
 
@@ -63,33 +64,33 @@ def test_pearson_degenerate_inputs_are_finite(prior):
     assert loss.item() == 0.0 and torch.isfinite(pred.grad).all()
 
 
-def _step(h: int = 16, w: int = 16) -> torch.Tensor:
-    d = torch.ones(h, w)
+def _step(device: torch.device, h: int = 16, w: int = 16) -> torch.Tensor:
+    d = torch.ones(h, w, device=device)
     d[:, w // 2 :] = 2.0  # a vertical depth step
     return d
 
 
-def test_smoothness_zero_for_constant_depth():
-    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(3))
-    assert edge_aware_smoothness(torch.full((16, 16), 4.0), img).item() == pytest.approx(0.0)
+def test_smoothness_zero_for_constant_depth(device):
+    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(3)).to(device)
+    assert edge_aware_smoothness(torch.full((16, 16), 4.0, device=device), img).item() == pytest.approx(0.0)
 
 
-def test_smoothness_cheaper_across_image_edge():
-    flat = torch.full((16, 16, 3), 0.5)
+def test_smoothness_cheaper_across_image_edge(device):
+    flat = torch.full((16, 16, 3), 0.5, device=device)
     edge = flat.clone()
     edge[:, 8:] = 1.0  # image edge at the same column as the depth step
-    d = _step()
+    d = _step(device)
     assert edge_aware_smoothness(d, edge).item() < 0.1 * edge_aware_smoothness(d, flat).item()
 
 
-def test_smoothness_scale_invariant_masked_and_differentiable():
-    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(4))
-    d = _step() + torch.rand(16, 16, generator=torch.Generator().manual_seed(5))
+def test_smoothness_scale_invariant_masked_and_differentiable(device):
+    img = torch.rand(16, 16, 3, generator=torch.Generator().manual_seed(4)).to(device)
+    d = _step(device) + torch.rand(16, 16, generator=torch.Generator().manual_seed(5)).to(device)
     base = edge_aware_smoothness(d, img)
     assert edge_aware_smoothness(10 * d, img).item() == pytest.approx(base.item(), rel=1e-5)
-    mask = torch.zeros(16, 16, dtype=torch.bool)
+    mask = torch.zeros(16, 16, dtype=torch.bool, device=device)
     mask[:, :8] = True
-    masked = edge_aware_smoothness(_step(), torch.full((16, 16, 3), 0.5), mask)
+    masked = edge_aware_smoothness(_step(device), torch.full((16, 16, 3), 0.5, device=device), mask)
     assert masked.item() == pytest.approx(0.0)  # the step lies outside the mask
     dg = d.clone().requires_grad_()
     edge_aware_smoothness(dg, img).backward()

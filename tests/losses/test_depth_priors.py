@@ -15,11 +15,12 @@ K = torch.tensor([[100.0, 0.0, 32.5], [0.0, 100.0, 24.5], [0.0, 0.0, 1.0]])  # c
 H, W = 48, 64
 
 
-def test_sfm_points_land_at_expected_pixels_with_z():
+def test_sfm_points_land_at_expected_pixels_with_z(device):
     pts = torch.tensor(
-        [[0.0, 0.0, 2.0], [0.1, -0.2, 2.0], [0.0, 0.0, 5.0], [0.0, 0.0, -2.0], [9.0, 0.0, 1.0]]
+        [[0.0, 0.0, 2.0], [0.1, -0.2, 2.0], [0.0, 0.0, 5.0], [0.0, 0.0, -2.0], [9.0, 0.0, 1.0]], device=device
     )
-    prior, valid = depth_from_sfm(pts, torch.eye(4), K, H, W, splat_radius=0, occlusion_window=0)
+    viewmat = torch.eye(4, device=device)
+    prior, valid = depth_from_sfm(pts, viewmat, K.to(device), H, W, splat_radius=0, occlusion_window=0)
     assert prior.shape == (H, W) and prior.dtype == torch.float32 and valid.dtype == torch.bool
     assert valid.sum() == 2  # two pixels: the z-buffer pair shares one, behind / outside are dropped
     assert prior[24, 32].item() == pytest.approx(2.0)  # nearest of z = 2 and z = 5
@@ -27,23 +28,24 @@ def test_sfm_points_land_at_expected_pixels_with_z():
     assert (prior[~valid] == 0).all()
 
 
-def test_sfm_splat_footprint_and_camera_pose():
+def test_sfm_splat_footprint_and_camera_pose(device):
     # camera 3 m behind the origin looking along +z (OpenCV axes), through Cameras.viewmats
-    c2w = torch.eye(4)
+    c2w = torch.eye(4, device=device)
     c2w[2, 3] = -3.0
-    one = lambda x: torch.tensor([x])  # noqa: E731
+    one = lambda x: torch.tensor([x], device=device)  # noqa: E731
     cams = Cameras(c2w[None], one(100.0), one(100.0), one(32.5), one(24.5), one(W), one(H))
-    pts = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    pts = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], device=device)
     prior, valid = depth_from_sfm(pts, cams.viewmats()[0], cams.Ks()[0], H, W, splat_radius=1)
     assert valid.sum() == 9 and valid[23:26, 31:34].all()
-    assert torch.allclose(prior[23:26, 31:34], torch.full((3, 3), 3.0))
+    assert torch.allclose(prior[23:26, 31:34], torch.full((3, 3), 3.0, device=device))
 
 
-def test_sfm_occlusion_filter_drops_points_seen_through_gaps():
+def test_sfm_occlusion_filter_drops_points_seen_through_gaps(device):
     # a near point at pixel (32, 24) and a far one 2 px to its right (u = 32.5 + 100 * 0.2 / 10)
-    pts = torch.tensor([[0.0, 0.0, 2.0], [0.2, 0.0, 10.0]])
-    _, keep = depth_from_sfm(pts, torch.eye(4), K, H, W, splat_radius=0, occlusion_window=0)
-    _, filt = depth_from_sfm(pts, torch.eye(4), K, H, W, splat_radius=0, occlusion_window=5)
+    pts = torch.tensor([[0.0, 0.0, 2.0], [0.2, 0.0, 10.0]], device=device)
+    viewmat, k = torch.eye(4, device=device), K.to(device)
+    _, keep = depth_from_sfm(pts, viewmat, k, H, W, splat_radius=0, occlusion_window=0)
+    _, filt = depth_from_sfm(pts, viewmat, k, H, W, splat_radius=0, occlusion_window=5)
     assert keep[24, 34] and not filt[24, 34] and filt[24, 32]
 
 

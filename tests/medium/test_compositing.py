@@ -15,13 +15,13 @@ from components.medium.compositing import CompositeConfig, MediumCompositor, com
 H, W = 24, 32
 
 
-def _camera() -> Cameras:
+def _camera(device: torch.device) -> Cameras:
     c2w = torch.eye(4)[None]
     c2w[0, :3, 3] = torch.tensor([0.1, -0.2, -3.0])
     f = torch.tensor([30.0])
     return Cameras(
         c2w, f, f * 1.1, torch.tensor([W / 2]), torch.tensor([H / 2]), torch.tensor([W]), torch.tensor([H])
-    )
+    ).to(device)
 
 
 class AnalyticField(MediumField):
@@ -39,24 +39,24 @@ class AnalyticField(MediumField):
 
 
 def _path_length(cam: Cameras, z: torch.Tensor) -> torch.Tensor:  # z [H, W] -> distance along ray
-    xs = (torch.arange(W) + 0.5 - W / 2) / 30.0
-    ys = (torch.arange(H) + 0.5 - H / 2) / 33.0
+    xs = (torch.arange(W, device=z.device) + 0.5 - W / 2) / 30.0
+    ys = (torch.arange(H, device=z.device) + 0.5 - H / 2) / 33.0
     return z * torch.sqrt(1 + xs[None] ** 2 + ys[:, None] ** 2)
 
 
-def _depth_with_edges(seed: int = 0) -> torch.Tensor:
-    g = torch.Generator().manual_seed(seed)
-    z = 2.0 + torch.rand(H, W, generator=g) * 0.2
+def _depth_with_edges(device: torch.device, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)  # drawn on the cpu: the same depths on every device
+    z = 2.0 + torch.rand(H, W, generator=g).to(device) * 0.2
     z[:, W // 2 + 1 :] += 3.0  # a depth edge inside a 4x4 block column
     z[5:9, 3:6] = 0.7  # a near object
     return z[..., None]
 
 
 @pytest.mark.parametrize("stride", [1, 2, 4, 5])
-def test_homogeneous_medium_is_exact_for_every_stride(stride):
-    cam = _camera()
-    field = AnalyticField(b0=0.4, b1=0.0)
-    z = _depth_with_edges()
+def test_homogeneous_medium_is_exact_for_every_stride(device, stride):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4, b1=0.0).to(device)
+    z = _depth_with_edges(device)
     ones = torch.ones_like(z)
     comp = MediumCompositor(CompositeConfig(num_samples=16, ray_stride=stride))
     med = comp(field, cam, z, ones)
@@ -67,11 +67,11 @@ def test_homogeneous_medium_is_exact_for_every_stride(stride):
     torch.testing.assert_close(med.scattering, expect_S, rtol=0, atol=2e-6)
 
 
-def test_depth_edges_stay_per_pixel():
+def test_depth_edges_stay_per_pixel(device):
     """Two neighbours across a depth edge in one coarse block get their own transmittance."""
-    cam = _camera()
-    field = AnalyticField(b0=0.4)
-    z = _depth_with_edges()
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4).to(device)
+    z = _depth_with_edges(device)
     med = MediumCompositor(CompositeConfig(ray_stride=8))(field, cam, z, torch.ones_like(z))
     T = med.transmittance[..., 0].detach()
     a, b = W // 2, W // 2 + 1
@@ -80,10 +80,10 @@ def test_depth_edges_stay_per_pixel():
     assert float((T[:, a] - expect[:, a]).abs().max()) < 1e-5
 
 
-def test_coarse_rays_close_to_per_pixel_rays_on_smooth_medium():
-    cam = _camera()
-    field = AnalyticField(b0=0.3, b1=0.25, view=0.1)
-    z = _depth_with_edges()
+def test_coarse_rays_close_to_per_pixel_rays_on_smooth_medium(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.3, b1=0.25, view=0.1).to(device)
+    z = _depth_with_edges(device)
     ones = torch.ones_like(z)
     full = MediumCompositor(CompositeConfig(num_samples=16, ray_stride=1))(field, cam, z, ones)
     fine = MediumCompositor(CompositeConfig(num_samples=256, ray_stride=1))(field, cam, z, ones)
@@ -99,10 +99,10 @@ def test_coarse_rays_close_to_per_pixel_rays_on_smooth_medium():
     assert float((full.transmittance - fine.transmittance).detach().abs().max()) < 5e-3
 
 
-def test_background_rays_reach_far_bound():
-    cam = _camera()
-    field = AnalyticField(b0=0.2)
-    z = torch.full((H, W, 1), 1.0)
+def test_background_rays_reach_far_bound(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.2).to(device)
+    z = torch.full((H, W, 1), 1.0, device=device)
     alpha = torch.zeros_like(z)
     comp = MediumCompositor(CompositeConfig(far=10.0))
     med = comp(field, cam, z, alpha)
@@ -112,24 +112,24 @@ def test_background_rays_reach_far_bound():
     assert default == pytest.approx(2 * math.sqrt(3 * 25.0), rel=1e-6)
 
 
-def test_no_haze_gives_identity():
-    cam = _camera()
-    field = AnalyticField(b0=0.0)
-    z = _depth_with_edges()
+def test_no_haze_gives_identity(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.0).to(device)
+    z = _depth_with_edges(device)
     med = MediumCompositor(CompositeConfig())(field, cam, z, torch.ones_like(z))
-    J = torch.rand(H, W, 3)
+    J = torch.rand(H, W, 3, device=device)
     assert torch.equal(med.transmittance, torch.ones_like(med.transmittance))
     assert torch.equal(med.scattering, torch.zeros_like(med.scattering))
     assert torch.equal(composite(J, med), J)
 
 
-def test_opaque_haze_is_finite_and_shows_only_the_medium():
-    cam = _camera()
-    field = AnalyticField(b0=1e4, light=0.5)
-    z = _depth_with_edges()
+def test_opaque_haze_is_finite_and_shows_only_the_medium(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=1e4, light=0.5).to(device)
+    z = _depth_with_edges(device)
     comp = MediumCompositor(CompositeConfig())
     med = comp(field, cam, z, torch.ones_like(z))
-    J = torch.rand(H, W, 3, requires_grad=True)
+    J = torch.rand(H, W, 3, device=device, requires_grad=True)
     hazy = composite(J, med)
     assert torch.isfinite(hazy).all()
     assert float(med.transmittance.detach().max()) <= 1e-6 + 1e-12
@@ -138,11 +138,11 @@ def test_opaque_haze_is_finite_and_shows_only_the_medium():
     assert torch.isfinite(J.grad).all() and torch.isfinite(field.scale.grad)
 
 
-def test_gradients_reach_medium_and_depth_only_when_asked():
-    cam = _camera()
-    field = AnalyticField(b0=0.3, b1=0.2)
+def test_gradients_reach_medium_and_depth_only_when_asked(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.3, b1=0.2).to(device)
     for flag in (False, True):
-        z = _depth_with_edges().requires_grad_(True)
+        z = _depth_with_edges(device).requires_grad_(True)
         med = MediumCompositor(CompositeConfig(depth_gradient=flag))(field, cam, z, torch.ones_like(z))
         (med.transmittance.sum() + med.scattering.sum()).backward()
         assert field.scale.grad is not None and float(field.scale.grad.abs()) > 0
@@ -153,16 +153,16 @@ def test_gradients_reach_medium_and_depth_only_when_asked():
             assert z.grad is None
 
 
-def test_none_medium_and_homogeneous_helper():
+def test_none_medium_and_homogeneous_helper(device):
     from components.medium.fields import NoMedium  # noqa: PLC0415 - registered by the fields module
 
-    cam = _camera()
-    z = _depth_with_edges()
-    none = NoMedium(MediumConfig(backend="none"), FieldBounds(torch.zeros(3), torch.ones(3)))
+    cam = _camera(device)
+    z = _depth_with_edges(device)
+    none = NoMedium(MediumConfig(backend="none"), FieldBounds(torch.zeros(3), torch.ones(3))).to(device)
     med = MediumCompositor(CompositeConfig())(none, cam, z, torch.ones_like(z))
     assert torch.equal(med.transmittance, torch.ones_like(z))
-    beta = torch.full((H, W), 0.4)
-    light = torch.full((H, W, 3), 0.6)
+    beta = torch.full((H, W), 0.4, device=device)
+    light = torch.full((H, W, 3), 0.6, device=device)
     hom = homogeneous_along_rays(beta, light, cam, z)
     expect = torch.exp(-0.4 * _path_length(cam, z[..., 0]))
     torch.testing.assert_close(hom.transmittance[..., 0], expect, rtol=0, atol=2e-6)

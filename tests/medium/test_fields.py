@@ -17,18 +17,20 @@ BOUNDS = FieldBounds(torch.tensor([1.0, -2.0, 0.5]), torch.tensor([2.0, 1.0, 3.0
 COLOUR = torch.tensor([0.8, 0.6, 0.4])
 
 
-def _make(backend: str, **kw) -> MediumField:
-    torch.manual_seed(0)
-    return MediumConfig(backend=backend, **kw).setup(BOUNDS)
+def _make(backend: str, device: torch.device, **kw) -> MediumField:
+    torch.manual_seed(0)  # built on the cpu, then moved: the same initial values on every device
+    return MediumConfig(backend=backend, **kw).setup(BOUNDS).to(device)
 
 
-def _points(n: int = 512, spread: float = 1.0, seed: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
-    """Random world points in (spread x) the box and random unit directions."""
+def _points(
+    device: torch.device, n: int = 512, spread: float = 1.0, seed: int = 1
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random world points in (spread x) the box and random unit directions (drawn on the cpu)."""
     g = torch.Generator().manual_seed(seed)
     u = (torch.rand(n, 3, generator=g) * 2 - 1) * spread
     x = BOUNDS.center + u * BOUNDS.half_size  # [n, 3]
     d = F.normalize(torch.randn(n, 3, generator=g), dim=-1)  # [n, 3]
-    return x, d
+    return x.to(device), d.to(device)
 
 
 def _perturb_heads(field: MediumField, scale: float = 1.0) -> None:
@@ -39,8 +41,8 @@ def _perturb_heads(field: MediumField, scale: float = 1.0) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_registry_builds_each_backend(backend: str) -> None:
-    field = MediumConfig(backend=backend).setup(BOUNDS)
+def test_registry_builds_each_backend(device, backend: str) -> None:
+    field = MediumConfig(backend=backend).setup(BOUNDS).to(device)
     assert isinstance(field, REGISTRY.get("medium", backend))
     assert isinstance(field, MediumField)
     assert field.is_field == field.has_medium == (backend != "none")
@@ -48,11 +50,11 @@ def test_registry_builds_each_backend(backend: str) -> None:
 
 @pytest.mark.parametrize("light", ["sh", "rgb"])
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_shapes_and_ranges(backend: str, light: str) -> None:
-    field = _make(backend, light=light)
+def test_shapes_and_ranges(device, backend: str, light: str) -> None:
+    field = _make(backend, device, light=light)
     if field.has_medium:
         _perturb_heads(field, 0.5)  # exercise the non-trivial range, not only the uniform init
-    x, d = _points(300, spread=1.5)
+    x, d = _points(device, 300, spread=1.5)
     s = field(x, d)
     assert s.beta.shape == (300,) and s.light.shape == (300, 3)
     assert s.beta.dtype == s.light.dtype == torch.float32
@@ -63,9 +65,9 @@ def test_shapes_and_ranges(backend: str, light: str) -> None:
     assert empty.beta.shape == (0,) and empty.light.shape == (0, 3)
 
 
-def test_none_is_zero_and_parameter_free() -> None:
-    field = _make("none")
-    x, d = _points(64)
+def test_none_is_zero_and_parameter_free(device) -> None:
+    field = _make("none", device)
+    x, d = _points(device, 64)
     s = field(x, d)
     assert (s.beta == 0).all() and (s.light == 0).all()
     assert len(list(field.parameters())) == 0
@@ -74,26 +76,26 @@ def test_none_is_zero_and_parameter_free() -> None:
 
 @pytest.mark.parametrize("light", ["sh", "rgb"])
 @pytest.mark.parametrize("backend", FIELDS)
-def test_initialize_is_uniform(backend: str, light: str) -> None:
+def test_initialize_is_uniform(device, backend: str, light: str) -> None:
     """Last layers start ~0.01-scaled, so the random features leave < 1e-3 of variation."""
-    field = _make(backend, light=light)
-    field.initialize(0.3, COLOUR)
-    x, d = _points(1000, spread=1.2)
+    field = _make(backend, device, light=light)
+    field.initialize(0.3, COLOUR.to(device))
+    x, d = _points(device, 1000, spread=1.2)
     s = field(x, d)
     torch.testing.assert_close(s.beta, torch.full_like(s.beta, 0.3), atol=1e-3, rtol=0)
-    torch.testing.assert_close(s.light, COLOUR.expand_as(s.light), atol=1e-3, rtol=0)
+    torch.testing.assert_close(s.light, COLOUR.to(device).expand_as(s.light), atol=1e-3, rtol=0)
     # the config's init is applied at construction too (one 0.01 scaling only)
-    fresh = _make(backend, light=light, init_beta=0.3, init_light=(0.8, 0.6, 0.4))(x, d)
+    fresh = _make(backend, device, light=light, init_beta=0.3, init_light=(0.8, 0.6, 0.4))(x, d)
     torch.testing.assert_close(fresh.beta, torch.full_like(s.beta, 0.3), atol=1e-3, rtol=0)
-    torch.testing.assert_close(fresh.light, COLOUR.expand_as(s.light), atol=1e-3, rtol=0)
+    torch.testing.assert_close(fresh.light, COLOUR.to(device).expand_as(s.light), atol=1e-3, rtol=0)
 
 
 @pytest.mark.parametrize("backend", FIELDS)
-def test_gradients_reach_every_parameter(backend: str) -> None:
-    field = _make(backend, tv_weight=0.0)
-    x, d = _points(512)
+def test_gradients_reach_every_parameter(device, backend: str) -> None:
+    field = _make(backend, device, tv_weight=0.0)
+    x, d = _points(device, 512)
     s = field(x, d)
-    (s.beta.sum() + (s.light * torch.tensor([1.0, -2.0, 3.0])).sum()).backward()
+    (s.beta.sum() + (s.light * torch.tensor([1.0, -2.0, 3.0], device=device)).sum()).backward()
     for name, p in field.named_parameters():
         assert p.grad is not None, name
         assert torch.isfinite(p.grad).all(), name
@@ -101,9 +103,9 @@ def test_gradients_reach_every_parameter(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", FIELDS)
-def test_param_groups_cover_every_parameter(backend: str) -> None:
+def test_param_groups_cover_every_parameter(device, backend: str) -> None:
     cfg = dict(lr=3e-3, kappa_lr=7e-4)
-    field = _make(backend, **cfg)
+    field = _make(backend, device, **cfg)
     groups = field.param_groups()
     params = dict(field.named_parameters())
     assert set(groups) == {f"medium.{n}" for n in params}
@@ -114,13 +116,14 @@ def test_param_groups_cover_every_parameter(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_outside_points_clamp_onto_the_box(backend: str) -> None:
-    field = _make(backend)
+def test_outside_points_clamp_onto_the_box(device, backend: str) -> None:
+    field = _make(backend, device)
     if field.has_medium:
         _perturb_heads(field, 0.5)
-    x, d = _points(256, spread=50.0)  # almost all far outside
+    x, d = _points(device, 256, spread=50.0)  # almost all far outside
     assert (~BOUNDS.inside(x)).float().mean() > 0.9
-    projected = BOUNDS.center + ((x - BOUNDS.center) / BOUNDS.half_size).clamp(-1, 1) * BOUNDS.half_size
+    c, h = BOUNDS.center.to(device), BOUNDS.half_size.to(device)
+    projected = c + ((x - c) / h).clamp(-1, 1) * h
     far, near = field(x, d), field(projected, d)
     assert torch.isfinite(far.beta).all() and torch.isfinite(far.light).all()
     torch.testing.assert_close(far.beta, near.beta, atol=1e-5, rtol=1e-5)
@@ -128,68 +131,68 @@ def test_outside_points_clamp_onto_the_box(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", FIELDS)
-def test_rgb_light_ignores_direction(backend: str) -> None:
-    field = _make(backend, light="rgb")
+def test_rgb_light_ignores_direction(device, backend: str) -> None:
+    field = _make(backend, device, light="rgb")
     _perturb_heads(field)
-    x, d = _points(128)
+    x, d = _points(device, 128)
     torch.testing.assert_close(field(x, d).light, field(x, -d.roll(1, dims=-1)).light)
 
 
 @pytest.mark.parametrize("backend", FIELDS)
-def test_sh_light_depends_on_direction(backend: str) -> None:
-    field = _make(backend, light="sh", sh_degree=1)
-    x, d = _points(128)
+def test_sh_light_depends_on_direction(device, backend: str) -> None:
+    field = _make(backend, device, light="sh", sh_degree=1)
+    x, d = _points(device, 128)
     # near-zero band-1 coefficients at init: almost isotropic
     assert (field(x, d).light - field(x, -d).light).abs().max() < 1e-2
     _perturb_heads(field)
     assert (field(x, d).light - field(x, -d).light).abs().max() > 0.05
 
 
-def test_spatial_variation_after_perturbation() -> None:
+def test_spatial_variation_after_perturbation(device) -> None:
     """Grids and MLPs vary in space once the heads are non-trivial; the constant field never does."""
-    x, _ = _points(256)
-    d = torch.tensor([0.0, 0.0, 1.0]).expand_as(x)
+    x, _ = _points(device, 256)
+    d = torch.tensor([0.0, 0.0, 1.0], device=device).expand_as(x)
     for backend in ["triplane", "voxel", "mlp", "fourier"]:
-        field = _make(backend)
+        field = _make(backend, device)
         _perturb_heads(field)
         assert field(x, d).beta.std() > 1e-3, backend
-    const = _make("constant")
+    const = _make("constant", device)
     _perturb_heads(const)
     s = const(x, d)
     assert torch.allclose(s.beta, s.beta[:1].expand_as(s.beta))
     assert torch.allclose(s.light, s.light[:1].expand_as(s.light))
 
 
-def test_triplane_planes_read_the_right_axes() -> None:
+def test_triplane_planes_read_the_right_axes(device) -> None:
     """Plane 0 is indexed by (x, y), plane 1 by (x, z), plane 2 by (y, z), with corners at +-1."""
-    field = _make("triplane", resolution=5, channels=2)
+    field = _make("triplane", device, resolution=5, channels=2)
     assert isinstance(field, TriplaneField)
-    ramp = torch.linspace(-1, 1, 5)
+    ramp = torch.linspace(-1, 1, 5, device=device)
     with torch.no_grad():
         field.features[:, 0] = ramp.view(1, 1, 5)  # varies along width: first coordinate of the pair
         field.features[:, 1] = ramp.view(1, 5, 1)  # varies along height: second coordinate
-    x, _ = _points(64, spread=1.3)
+    x, _ = _points(device, 64, spread=1.3)
     n = BOUNDS.normalize(x)
     feat = field.encode(x).view(-1, 3, 2)  # [P, plane, channel]
     expected = torch.stack([n[:, [0, 1]], n[:, [0, 2]], n[:, [1, 2]]], dim=1)  # [P, 3, 2]
     torch.testing.assert_close(feat, expected, atol=1e-5, rtol=0)
 
 
-def test_voxel_reads_the_right_axes() -> None:
-    field = _make("voxel", channels=3)
+def test_voxel_reads_the_right_axes(device) -> None:
+    field = _make("voxel", device, channels=3)
     assert isinstance(field, VoxelField)
     g = field.features.shape[-1]
-    ramp = torch.linspace(-1, 1, g)
+    ramp = torch.linspace(-1, 1, g, device=device)
     with torch.no_grad():
         field.features[0, 0] = ramp.view(1, 1, g)  # W <- x
         field.features[0, 1] = ramp.view(1, g, 1)  # H <- y
         field.features[0, 2] = ramp.view(g, 1, 1)  # D <- z
-    x, _ = _points(64, spread=1.3)
+    x, _ = _points(device, 64, spread=1.3)
     torch.testing.assert_close(field.encode(x), BOUNDS.normalize(x), atol=1e-5, rtol=0)
 
 
-def test_voxel_matches_the_triplane_budget() -> None:
-    tri, vox = _make("triplane"), _make("voxel")
+def test_voxel_matches_the_triplane_budget(device) -> None:
+    tri, vox = _make("triplane", device), _make("voxel", device)
     assert tuple(tri.features.shape) == (3, 8, 64, 64)
     assert tuple(vox.features.shape) == (1, 8, 23, 23, 23)
     n_tri = tri.features.numel()
@@ -198,15 +201,15 @@ def test_voxel_matches_the_triplane_budget() -> None:
     assert abs(n_vox_total - n_tri) / n_tri < 0.05
 
 
-def test_fourier_input_width() -> None:
-    field = _make("fourier", num_frequencies=4)
+def test_fourier_input_width(device) -> None:
+    field = _make("fourier", device, num_frequencies=4)
     assert field.encoder[0].in_features == 3 * (1 + 2 * 4)
 
 
 @pytest.mark.parametrize("backend", ["triplane", "voxel"])
-def test_tv_regularizer(backend: str) -> None:
-    assert _make(backend).regularizer() is None
-    field = _make(backend, tv_weight=0.5)
+def test_tv_regularizer(device, backend: str) -> None:
+    assert _make(backend, device).regularizer() is None
+    field = _make(backend, device, tv_weight=0.5)
     reg = field.regularizer()
     assert reg is not None and reg.ndim == 0 and reg > 0
     reg.backward()
@@ -214,48 +217,48 @@ def test_tv_regularizer(backend: str) -> None:
     with torch.no_grad():
         field.features.fill_(0.3)
     assert field.regularizer() == 0
-    unweighted = _make(backend, tv_weight=1.0).regularizer()
-    torch.testing.assert_close(_make(backend, tv_weight=0.5).regularizer(), 0.5 * unweighted)
+    unweighted = _make(backend, device, tv_weight=1.0).regularizer()
+    torch.testing.assert_close(_make(backend, device, tv_weight=0.5).regularizer(), 0.5 * unweighted)
 
 
 @pytest.mark.parametrize("backend", ["mlp", "fourier", "constant"])
-def test_no_regularizer_without_grid(backend: str) -> None:
-    assert _make(backend, tv_weight=1.0).regularizer() is None
+def test_no_regularizer_without_grid(device, backend: str) -> None:
+    assert _make(backend, device, tv_weight=1.0).regularizer() is None
 
 
-def test_grid_init_follows_the_global_seed() -> None:
-    a, b = _make("triplane"), _make("triplane")
+def test_grid_init_follows_the_global_seed(device) -> None:
+    a, b = _make("triplane", device), _make("triplane", device)
     assert torch.equal(a.features, b.features)
     torch.manual_seed(123)
-    c = MediumConfig(backend="triplane").setup(BOUNDS)
+    c = MediumConfig(backend="triplane").setup(BOUNDS).to(device)
     assert not torch.equal(a.features, c.features)
     assert 0.05 < float(a.features.detach().std()) < 0.2
 
 
-def test_bounds_from_scene_hold_cameras_and_ignore_outliers() -> None:
+def test_bounds_from_scene_hold_cameras_and_ignore_outliers(device) -> None:
     g = torch.Generator().manual_seed(0)
-    angles = torch.linspace(0, 6.28, 12)
+    angles = torch.linspace(0, 6.28, 12, device=device)
     cams = torch.stack([4 * angles.cos(), 4 * angles.sin(), torch.full_like(angles, 1.5)], dim=-1)
-    points = torch.randn(2000, 3, generator=g)
-    points = torch.cat([points, torch.tensor([[500.0, -300.0, 800.0]])])
+    points = torch.randn(2000, 3, generator=g).to(device)  # drawn on the cpu: the same cloud everywhere
+    points = torch.cat([points, torch.tensor([[500.0, -300.0, 800.0]], device=device)])
     bounds = FieldBounds.from_scene(cams, points)
     assert bounds.inside(cams).all()
     assert (bounds.half_size < 10).all()  # the outlier did not stretch the box
     assert not bounds.inside(points[-1:]).any()
     assert bounds.inside(points[:-1]).float().mean() > 0.9
     # the outlier is still finite through clamping
-    field = MediumConfig(backend="triplane").setup(bounds)
-    s = field(points[-1:], torch.tensor([[0.0, 0.0, 1.0]]))
+    field = MediumConfig(backend="triplane").setup(bounds).to(device)
+    s = field(points[-1:], torch.tensor([[0.0, 0.0, 1.0]], device=device))
     assert torch.isfinite(s.beta).all() and torch.isfinite(s.light).all()
 
 
-def test_gaussian_bound_pixel_medium_is_over_compositing() -> None:
+def test_gaussian_bound_pixel_medium_is_over_compositing(device) -> None:
     """Covered pixels take the Gaussians' values, uncovered ones the background, partial a mix."""
-    field = _make("gaussian-bound")
+    field = _make("gaussian-bound", device)
     with torch.no_grad():
-        field.background.copy_(torch.tensor([0.5, -1.0, 0.0, 1.0]))
-    value = torch.tensor([2.0, 1.0, -2.0, 0.5])  # one Gaussian's raw medium
-    alpha = torch.tensor([1.0, 0.0, 0.25]).view(3, 1, 1)  # [H=3, W=1, 1]
+        field.background.copy_(torch.tensor([0.5, -1.0, 0.0, 1.0], device=device))
+    value = torch.tensor([2.0, 1.0, -2.0, 0.5], device=device)  # one Gaussian's raw medium
+    alpha = torch.tensor([1.0, 0.0, 0.25], device=device).view(3, 1, 1)  # [H=3, W=1, 1]
     blended = alpha * value  # [3, 1, 4] what the rasterizer returns for a single splat
     beta, light = field.pixel_medium(blended, alpha)
     kappa = field.log_kappa.exp()

@@ -25,9 +25,17 @@ def hazy_scene(tmp_path_factory) -> Path:
     )  # fmt: skip
 
 
-def _config(scene: Path, out: Path, *overrides: str, method: str = "tri-dehaze", steps: int = STEPS):
+def _config(
+    scene: Path,
+    out: Path,
+    device: torch.device,
+    *overrides: str,
+    method: str = "tri-dehaze",
+    steps: int = STEPS,
+):
     argv = [
         method, "--data", str(scene), "--output-dir", str(out), "--max-steps", str(steps),
+        "--device", str(device),
         "--pipeline.warmup-steps", "3", "--pipeline.freeze-step", "3", "--pipeline.medium-hold-fraction", "0",
         "--pipeline.rasterizer.backend", "torch", "--eval-at-end", "--steps-per-save", "100", *overrides,
     ]  # fmt: skip
@@ -68,9 +76,9 @@ ABLATIONS = [
 
 
 @pytest.mark.parametrize("override", ABLATIONS, ids=lambda o: "-".join(o))
-def test_every_ablation_override_trains(hazy_scene, tmp_path, override):
+def test_every_ablation_override_trains(hazy_scene, tmp_path, device, override):
     args = () if override == ("triplane",) else override
-    cfg = _config(hazy_scene, tmp_path, *args)
+    cfg = _config(hazy_scene, tmp_path, device, *args)
     trainer = _train(cfg)
     metrics = trainer.pipeline.stats()
     assert metrics["stage"] == 2
@@ -80,8 +88,8 @@ def test_every_ablation_override_trains(hazy_scene, tmp_path, override):
     assert (trainer.run_dir / "eval" / "metrics.json").is_file()
 
 
-def test_outputs_shapes_and_physics(hazy_scene, tmp_path):
-    trainer = _train(_config(hazy_scene, tmp_path))
+def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
+    trainer = _train(_config(hazy_scene, tmp_path, device))
     cam = trainer.datamanager.camera(1)
     out = trainer.pipeline.render(cam)
     H, W = int(cam.height[0]), int(cam.width[0])
@@ -95,16 +103,16 @@ def test_outputs_shapes_and_physics(hazy_scene, tmp_path):
     torch.testing.assert_close(out["hazy"], expect, atol=1e-5, rtol=0)
 
 
-def test_no_medium_is_plain_gaussians(hazy_scene, tmp_path):
-    trainer = _train(_config(hazy_scene, tmp_path, "--pipeline.medium.backend", "none"))
+def test_no_medium_is_plain_gaussians(hazy_scene, tmp_path, device):
+    trainer = _train(_config(hazy_scene, tmp_path, device, "--pipeline.medium.backend", "none"))
     out = trainer.pipeline.render(trainer.datamanager.camera(0))
     assert torch.equal(out["hazy"], out["clean"])
     assert torch.equal(out["transmittance"], torch.ones_like(out["transmittance"]))
     assert not list(trainer.pipeline.medium.parameters())
 
 
-def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path):
-    cfg = _config(hazy_scene, tmp_path, "--pipeline.freeze-step", "4", steps=8)
+def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path, device):
+    cfg = _config(hazy_scene, tmp_path, device, "--pipeline.freeze-step", "4", steps=8)
     cfg.pipeline.medium_hold_fraction = 0.25  # steps 0, 1 hold the medium
     from rich.console import Console
 
@@ -126,9 +134,9 @@ def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path):
     assert int(pipe.stage) == 2
 
 
-def test_checkpoint_holds_stage_and_reloads(hazy_scene, tmp_path):
-    trainer = _train(_config(hazy_scene, tmp_path))
-    run = load_run(trainer.run_dir / "config.yml")
+def test_checkpoint_holds_stage_and_reloads(hazy_scene, tmp_path, device):
+    trainer = _train(_config(hazy_scene, tmp_path, device))
+    run = load_run(trainer.run_dir / "config.yml", device=device)
     assert int(run.pipeline.stage) == 2
     a = trainer.pipeline.render(trainer.datamanager.camera(0))
     b = run.pipeline.render(run.datamanager.camera(0))
@@ -136,10 +144,10 @@ def test_checkpoint_holds_stage_and_reloads(hazy_scene, tmp_path):
         torch.testing.assert_close(a[name], b[name], atol=1e-5, rtol=0)
 
 
-def test_densification_sees_uncompensated_gradient(hazy_scene, tmp_path):
+def test_densification_sees_uncompensated_gradient(hazy_scene, tmp_path, device):
     grads = {}
     for mode in ("uncompensated", "compensated"):
-        cfg = _config(hazy_scene, tmp_path / mode, "--pipeline.gradient-policy", "tgc",
+        cfg = _config(hazy_scene, tmp_path / mode, device, "--pipeline.gradient-policy", "tgc",
                       "--pipeline.densify-grad", mode)  # fmt: skip
         from rich.console import Console
 
@@ -170,7 +178,7 @@ def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
     assert scaled_step(cfg2.freeze_step, cfg2.freeze_fraction, 1000) == 123
 
 
-def test_auto_depth_prior_prefers_files_then_sfm_then_warmup():
+def test_auto_depth_prior_prefers_files_then_sfm_then_warmup(device):
     from types import SimpleNamespace
 
     from pipelines.tridehaze.priors import resolve_depth_prior
@@ -178,7 +186,7 @@ def test_auto_depth_prior_prefers_files_then_sfm_then_warmup():
     def dm(depths, points):
         return SimpleNamespace(train_indices=[0, 1], scene=SimpleNamespace(depth_paths=depths, points=points))
 
-    pts = torch.zeros(5, 3)
+    pts = torch.zeros(5, 3, device=device)
     assert resolve_depth_prior("auto", dm([Path("a"), Path("b")], pts)) == "files"
     assert resolve_depth_prior("auto", dm([Path("a"), None], pts)) == "sfm"
     assert resolve_depth_prior("auto", dm([None, None], None)) == "warmup"

@@ -52,7 +52,7 @@ def fresh_kernel_state(monkeypatch):
 def test_missing_compiler_falls_back_to_torch_with_one_line(fresh_kernel_state, capsys) -> None:
     fresh_kernel_state.setenv("CXX", "/nonexistent/c++")
     assert not CpuRasterizer.available()
-    assert resolve_backend("auto") == "torch"
+    assert resolve_backend("auto", device=torch.device("cpu")) == "torch"
     rast = CpuRasterizer()
     out = rast.rasterize(**_scene(), width=32, height=24)
     err = capsys.readouterr().err

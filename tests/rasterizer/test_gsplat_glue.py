@@ -188,6 +188,7 @@ def test_rasterizer_benchmark_runs_a_gsplat_row(cpu_gsplat, monkeypatch) -> None
     assert bench.device_of("gsplat").type == "cuda" and bench.device_of("cpu").type == "cpu"
     monkeypatch.setattr(bench, "device_of", lambda backend: torch.device("cpu"))
     monkeypatch.setattr(GsplatRasterizer, "unavailable_reason", classmethod(lambda cls: None))
+    monkeypatch.setattr(GsplatRasterizer, "runs_on", classmethod(lambda cls, device: True))  # the stand-in
     rows = bench.bench_case(["torch", "gsplat"], 200, 32, 24, repeats=1, scale_mult=1.0)
     assert [r["backend"] for r in rows] == ["torch", "gsplat"]
     assert all(r["forward_s"] > 0 and r["fwd_bwd_s"] > 0 and r["speedup_fwd_bwd"] > 0 for r in rows)

@@ -31,6 +31,10 @@ class _FakeCpu(_Fake):
 class _FakeGsplat(_Fake):
     name = "gsplat"
 
+    @classmethod
+    def runs_on(cls, device: torch.device) -> bool:
+        return device.type == "cuda"
+
 
 def test_torch_backend_is_registered_and_built_with_the_config() -> None:
     assert REGISTRY.get("rasterizer", "torch") is TorchRasterizer
@@ -69,6 +73,23 @@ def test_auto_prefers_gsplat_on_cuda_then_cpu_then_torch(capsys) -> None:
     finally:
         _FakeCpu.ok = True
         _FakeGsplat.ok = True
+
+
+def test_auto_follows_the_run_device_not_the_machine() -> None:
+    """A CPU run on a CUDA machine must not get the CUDA-only backend (it crashed inside gsplat)."""
+    reg = Registry()
+    for name, cls in (("torch", TorchRasterizer), ("cpu", _FakeCpu), ("gsplat", _FakeGsplat)):
+        reg.register("rasterizer", name, cls)
+    assert resolve_backend("auto", reg, device=torch.device("cpu")) == "cpu"
+    assert resolve_backend("auto", reg, device=torch.device("cuda")) == "gsplat"
+    _FakeGsplat.ok = False
+    try:
+        assert resolve_backend("auto", reg, device=torch.device("cuda")) == "cpu"
+    finally:
+        _FakeGsplat.ok = True
+    with pytest.raises(ConfigError, match="does not render on cpu") as err:
+        resolve_backend("gsplat", reg, device=torch.device("cpu"))
+    assert err.value.where == "--pipeline.rasterizer.backend" and "--device cuda" in err.value.fix
 
 
 def test_rasterizer_without_config_uses_defaults() -> None:

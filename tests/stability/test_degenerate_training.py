@@ -103,9 +103,10 @@ def scenes(tmp_path_factory):
 
 
 # ----------------------------------------------------------------------------------- training
-def _trainer(scene: Path, out: Path, *extra: str, backend: str = "torch") -> Trainer:
+def _trainer(scene: Path, out: Path, device: torch.device, *extra: str, backend: str = "torch") -> Trainer:
     cfg = parse_args([
         "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--max-steps", str(STEPS),
+        "--device", str(device),
         "--pipeline.freeze-step", "6", "--pipeline.medium-hold-fraction", "0", "--pipeline.rasterizer.backend",
         backend, "--steps-per-save", "100", "--no-eval-at-end", "--threads", "1", *extra,
     ])  # fmt: skip
@@ -154,16 +155,17 @@ centre, ``gen`` the random generator to draw from."""
 
 def _scales(rows, R, eye, ext, gen):
     v = [-120.0, math.log(1e-7 * ext), math.log(1e8 * ext), math.log(1e30 * ext)]  # 0 exactly ... overflow
-    rows["log_scales"][:4] = torch.tensor(v)[:, None]
-    rows["log_scales"][4:] = torch.tensor([math.log(10 * ext), -120.0, -120.0])  # needles
-    rows["quats"][4:] = torch.randn(PER_CAMERA - 4, 4, generator=gen)
+    rows["log_scales"][:4] = torch.tensor(v, device=eye.device)[:, None]
+    rows["log_scales"][4:] = torch.tensor([math.log(10 * ext), -120.0, -120.0], device=eye.device)  # needles
+    rows["quats"][4:] = torch.randn(PER_CAMERA - 4, 4, generator=gen).to(eye.device)
 
 
 def _rotations(rows, R, eye, ext, gen):
     rows["quats"][:3] = 0.0
-    rows["quats"][3:6] = torch.randn(3, 4, generator=gen) * 1e6
-    rows["quats"][6:] = torch.randn(PER_CAMERA - 6, 4, generator=gen) * 1e-8
-    rows["log_scales"][:] = torch.log(torch.tensor([0.1, 0.01, 0.001]) * ext)  # anisotropic: rotation matters
+    rows["quats"][3:6] = torch.randn(3, 4, generator=gen).to(eye.device) * 1e6
+    rows["quats"][6:] = torch.randn(PER_CAMERA - 6, 4, generator=gen).to(eye.device) * 1e-8
+    anisotropic = torch.tensor([0.1, 0.01, 0.001], device=eye.device)
+    rows["log_scales"][:] = torch.log(anisotropic * ext)  # anisotropic: rotation matters
 
 
 def _opacities(rows, R, eye, ext, gen):
@@ -173,7 +175,7 @@ def _opacities(rows, R, eye, ext, gen):
 
 def _near_plane(rows, R, eye, ext, gen):
     # camera z of the centres (near plane 0.01), up to float32 rounding of the world coordinates
-    z = torch.tensor([0.0, 0.01, 0.0101, 0.0099, 0.02, 1e-6, -0.01, -1.0])
+    z = torch.tensor([0.0, 0.01, 0.0101, 0.0099, 0.02, 1e-6, -0.01, -1.0], device=eye.device)
     rows["means"] = eye + z[:, None] * R[:, 2]
 
 
@@ -193,17 +195,17 @@ def _infinite_scale(rows, R, eye, ext, gen):
 @torch.no_grad()
 def _inject(trainer: Trainer, edit: Edit) -> int:
     """Append degenerate Gaussians in front of every training camera; rebuild the optimizers."""
-    pipe, dm = trainer.pipeline, trainer.datamanager
+    pipe, dm, device = trainer.pipeline, trainer.datamanager, trainer.device
     model = pipe.model
     new: dict[str, list[torch.Tensor]] = {k: [] for k in model.param_names}
-    gen = torch.Generator().manual_seed(0)
+    gen = torch.Generator().manual_seed(0)  # on the cpu: the same Gaussians on every device
     for idx in dm.train_indices:
         c2w = dm.camera(idx).camtoworlds[0]
         R, eye = c2w[:3, :3], c2w[:3, 3]
-        pick = torch.randint(model.num_gaussians, (PER_CAMERA,), generator=gen)
+        pick = torch.randint(model.num_gaussians, (PER_CAMERA,), generator=gen).to(device)
         rows = {k: model.params[k].detach()[pick].clone() for k in model.param_names}
-        depth = torch.linspace(0.3, 1.0, PER_CAMERA)[:, None]
-        side = torch.linspace(-0.2, 0.2, PER_CAMERA)[:, None]
+        depth = torch.linspace(0.3, 1.0, PER_CAMERA, device=device)[:, None]
+        side = torch.linspace(-0.2, 0.2, PER_CAMERA, device=device)[:, None]
         rows["means"] = eye + depth * R[:, 2] + side * depth * R[:, 0]  # in view
         rows["opacity_logits"][:] = 2.0
         edit(rows, R, eye, pipe.scene_extent, gen)
@@ -215,12 +217,12 @@ def _inject(trainer: Trainer, edit: Edit) -> int:
     return model.num_gaussians - n
 
 
-def test_degenerate_values_are_what_they_claim_in_float32():
+def test_degenerate_values_are_what_they_claim_in_float32(device):
     """The parameter values used below give exactly the degenerate Gaussians they are named after."""
-    assert float(torch.exp(torch.tensor(-120.0))) == 0.0
-    assert float(torch.sigmoid(torch.tensor(-120.0))) == 0.0
-    assert float(torch.sigmoid(torch.tensor(40.0))) == 1.0
-    assert math.isinf(float(torch.exp(torch.tensor(90.0))))
+    assert float(torch.exp(torch.tensor(-120.0, device=device))) == 0.0
+    assert float(torch.sigmoid(torch.tensor(-120.0, device=device))) == 0.0
+    assert float(torch.sigmoid(torch.tensor(40.0, device=device))) == 1.0
+    assert math.isinf(float(torch.exp(torch.tensor(90.0, device=device))))
 
 
 CASES = {
@@ -233,9 +235,9 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", list(CASES))
-def test_degenerate_gaussians_train_finitely(scenes, tmp_path, case):
+def test_degenerate_gaussians_train_finitely(scenes, tmp_path, device, case):
     edit, skipped = CASES[case]
-    trainer = _trainer(scenes["street"], tmp_path, *DENSIFY)
+    trainer = _trainer(scenes["street"], tmp_path, device, *DENSIFY)
     assert _inject(trainer, edit) == PER_CAMERA * len(trainer.datamanager.train_indices)
     if skipped:  # the gradient through an infinite scale is not finite: the step guard's case
         before = {k: v.clone() for k, v in trainer.pipeline.model.params.items()}
@@ -248,34 +250,34 @@ def test_degenerate_gaussians_train_finitely(scenes, tmp_path, case):
 
 
 @pytest.mark.parametrize("backend", ["torch", "cpu"])
-def test_all_degenerate_kinds_at_once(scenes, tmp_path, backend):
+def test_all_degenerate_kinds_at_once(scenes, tmp_path, device, backend):
     if resolve_backend("auto") != "cpu" and backend == "cpu":
         pytest.skip("cpu rasterizer extension not available")
-    trainer = _trainer(scenes["street"], tmp_path, *DENSIFY, backend=backend)
+    trainer = _trainer(scenes["street"], tmp_path, device, *DENSIFY, backend=backend)
     _inject(trainer, _everything)
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
 
 
 # --------------------------------------------------------------------------- cameras in the fog
-def test_cameras_inside_generated_fog(scenes, tmp_path):
+def test_cameras_inside_generated_fog(scenes, tmp_path, device):
     """Every view, nearest wall included, is nearly opaque: the cameras stand inside the fog."""
     gt = [np.load(p) for p in sorted((scenes["fog"] / "gt_transmittance").glob("*.npy"))]
     assert max(float(t.max()) for t in gt) < 0.02
     trainer = _trainer(
-        scenes["fog"], tmp_path, "--pipeline.gradient-policy", "tgc", "--pipeline.t-min", "1e-4"
+        scenes["fog"], tmp_path, device, "--pipeline.gradient-policy", "tgc", "--pipeline.t-min", "1e-4"
     )
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
 
 
-def test_cameras_embedded_in_an_opaque_learned_medium(scenes, tmp_path):
+def test_cameras_embedded_in_an_opaque_learned_medium(scenes, tmp_path, device):
     """The learned medium re-initialised so thick that T sits at its floor on every pixel of every view."""
     trainer = _trainer(
-        scenes["street"], tmp_path, "--pipeline.gradient-policy", "tgc", "--pipeline.t-min", "1e-4"
+        scenes["street"], tmp_path, device, "--pipeline.gradient-policy", "tgc", "--pipeline.t-min", "1e-4"
     )
     pipe = trainer.pipeline
-    pipe.medium.initialize(1e3, torch.tensor([0.7, 0.7, 0.7]))
+    pipe.medium.initialize(1e3, torch.tensor([0.7, 0.7, 0.7], device=device))
     floor = pipe.config.composite.t_floor
     for idx in trainer.datamanager.train_indices:
         T = pipe.render(trainer.datamanager.camera(idx))["transmittance"]
@@ -290,8 +292,8 @@ def _sky_indices(trainer: Trainer, names: list[str]) -> list[int]:
     return [all_names.index(n) for n in names]
 
 
-def test_sky_only_views_among_the_training_views(scenes, tmp_path):
-    trainer = _trainer(scenes["sky"], tmp_path)
+def test_sky_only_views_among_the_training_views(scenes, tmp_path, device):
+    trainer = _trainer(scenes["sky"], tmp_path, device)
     pipe = trainer.pipeline
     sky = _sky_indices(trainer, scenes["sky_names"])
     assert set(sky) <= set(trainer.datamanager.train_indices)
@@ -304,17 +306,17 @@ def test_sky_only_views_among_the_training_views(scenes, tmp_path):
     _assert_sound(trainer, trainer.train().metrics)
 
 
-def test_training_on_sky_only_views(scenes, tmp_path):
+def test_training_on_sky_only_views(scenes, tmp_path, device):
     """Every training view sees nothing but sky; the test views (with geometry) still render finitely."""
-    trainer = _trainer(scenes["sky_only"], tmp_path)
+    trainer = _trainer(scenes["sky_only"], tmp_path, device)
     assert sorted(trainer.datamanager.train_indices) == sorted(_sky_indices(trainer, scenes["sky_names"]))
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
 
 
-def test_nothing_rendered_in_any_view(scenes, tmp_path):
+def test_nothing_rendered_in_any_view(scenes, tmp_path, device):
     """Every opacity exactly 0: alpha = 0 on every pixel and the medium is marched to the far bound."""
-    trainer = _trainer(scenes["sky"], tmp_path)
+    trainer = _trainer(scenes["sky"], tmp_path, device)
     pipe = trainer.pipeline
     with torch.no_grad():
         pipe.model.params["opacity_logits"].fill_(-120.0)

@@ -41,9 +41,10 @@ def _rescaled(src: Path, dst: Path, scale: float) -> Path:
     return dst
 
 
-def _train(scene: Path, out: Path, *extra: str):
+def _train(scene: Path, out: Path, device: torch.device, *extra: str):
     cfg = parse_args([
         "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--max-steps", str(STEPS),
+        "--device", str(device),
         "--pipeline.freeze-step", "6", "--pipeline.medium-hold-fraction", "0", "--pipeline.rasterizer.backend",
         "torch", "--steps-per-save", "100", "--threads", "1", *extra,
     ])  # fmt: skip
@@ -84,21 +85,21 @@ def scenes(tmp_path_factory):
         ("homogeneous", ("--pipeline.t-min", "1")),
     ],
 )
-def test_short_runs_stay_finite(scenes, tmp_path, case, extra):
-    _assert_sound(*_train(scenes[case], tmp_path, *extra))
+def test_short_runs_stay_finite(scenes, tmp_path, device, case, extra):
+    _assert_sound(*_train(scenes[case], tmp_path, device, *extra))
 
 
-def test_dense_haze_reaches_tiny_transmittance(scenes, tmp_path):
-    trainer, result = _train(scenes["dense"], tmp_path)
+def test_dense_haze_reaches_tiny_transmittance(scenes, tmp_path, device):
+    trainer, result = _train(scenes["dense"], tmp_path, device)
     T = trainer.pipeline.render(trainer.datamanager.camera(0))["transmittance"]
     assert float(T.min()) < 0.05  # the generated fog is nearly opaque on far pixels
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
-def test_units_do_not_change_the_result(scenes, tmp_path, scale):
+def test_units_do_not_change_the_result(scenes, tmp_path, device, scale):
     """Poses are normalised on load, so a scene in millimetres or kilometres trains identically."""
-    ref_trainer, ref = _train(scenes["homogeneous"], tmp_path / "ref")
+    ref_trainer, ref = _train(scenes["homogeneous"], tmp_path / "ref", device)
     other = _rescaled(scenes["homogeneous"], tmp_path / f"x{scale:g}", scale)
-    trainer, res = _train(other, tmp_path / "out")
+    trainer, res = _train(other, tmp_path / "out", device)
     _assert_sound(trainer, res)
     assert abs(res.metrics["reconstruction_psnr"] - ref.metrics["reconstruction_psnr"]) < 0.5

@@ -99,7 +99,8 @@ def _print_summary(console: Console, args: ExportArgs, summary: dict[str, Any]) 
     mb = summary["ply_bytes"] / 1e6
     console.print(
         f"wrote {out / 'splat.ply'}: {summary['gaussians']} Gaussians, SH degree {summary['sh_degree']}, "
-        f"{mb:.2f} MB, {args.frame} frame"
+        f"{mb:.2f} MB, {args.frame} frame",
+        soft_wrap=True,  # a path wrapped by the console cannot be copied
     )
     med = summary["medium"]
     if med is None:
@@ -107,11 +108,13 @@ def _print_summary(console: Console, args: ExportArgs, summary: dict[str, Any]) 
     elif med["kind"] == "field":
         console.print(
             f"wrote {out / 'medium.npz'} ({med['resolution']}^3 extinction, {med['beta_unit']}: "
-            f"median {med['beta_median']:.4g}, max {med['beta_max']:.4g}) and 3 extinction slices"
+            f"median {med['beta_median']:.4g}, max {med['beta_max']:.4g}) and 3 extinction slices",
+            soft_wrap=True,
         )
     else:
         console.print(
-            f"wrote {out / 'medium.npz'} (per-Gaussian extinction and light of the gaussian-bound medium)"
+            f"wrote {out / 'medium.npz'} (per-Gaussian extinction and light of the gaussian-bound medium)",
+            soft_wrap=True,
         )
 
 
