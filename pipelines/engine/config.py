@@ -10,6 +10,7 @@ import tyro
 
 from components.data.config import DataConfig
 from pipelines.engine.contract import PipelineConfig
+from pipelines.engine.device import check_device_name
 from pipelines.engine.early_stop import EarlyStopConfig
 from pipelines.engine.optimizers import OptimizerConfig
 from tridehaze_plugin.errors import ConfigError
@@ -110,11 +111,28 @@ class TrainerConfig:
             raise ConfigError(f"--test-every must be >= 0, got {self.dataset.test_every}")
         if self.threads is not None:
             _positive("--threads", self.threads)
-        if self.device not in ("auto", "cpu") and not self.device.startswith("cuda"):
-            raise ConfigError(f"--device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
+        check_device_name(self.device)
+        if self.timestamp is not None:
+            check_folder_name("--timestamp", self.timestamp)
         self.viewer.check_values()
         self.early_stop.check_values()
         self.pipeline.check_values()
+
+
+def check_folder_name(flag: str, name: str) -> None:
+    """One plain folder name: a run folder must stay inside ``--output-dir``."""
+    bad = (
+        not name
+        or name in (".", "..")
+        or any(sep in name for sep in ("/", "\\"))
+        or any(ord(ch) < 32 for ch in name)
+    )
+    if bad:
+        raise ConfigError(
+            f"{flag} must be one plain folder name (no path separators, '.', '..' or control characters), "
+            f"got {name!r}",
+            fix=f"use e.g. {flag} run-1",
+        )
 
 
 def _positive(flag: str, value: int | float) -> None:

@@ -65,6 +65,17 @@ CASES: dict[str, Case] = {
     "train: transform_matrix of the wrong shape": Case(
         "train", (*TRAIN, "--data", "{fx}/bad_pose"), "transform_matrix must be a 4x4"
     ),
+    "train: --timestamp climbs out of --output-dir": Case(
+        "train",
+        (*TRAIN, "--data", "{scene}", "--timestamp", "../../../../x"),
+        "--timestamp must be one plain",
+    ),
+    "train: --timestamp is a nested path": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--timestamp", "a/b"), "--timestamp must be one plain"
+    ),
+    "train: --timestamp ..": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--timestamp", ".."), "--timestamp must be one plain"
+    ),
     "train: negative --max-steps": Case(
         "train", (*TRAIN, "--data", "{scene}", "--max-steps", "-5"), "--max-steps must be >= 1"
     ),
