@@ -9,6 +9,7 @@ with type checks: nothing in the file can name a class or execute code.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass
@@ -62,6 +63,20 @@ def validate(cfg: Any, registry: Registry | None = None, _prefix: str = "") -> N
                 raise ConfigError(registry.unknown_message(meta.kind, value), where=flag)
         if dataclasses.is_dataclass(value):
             validate(value, registry, f"{_prefix}{f.name}.")
+
+
+def check_finite(cfg: Any, _prefix: str = "") -> None:
+    """Reject nan / inf in every float option (recursively, tuples too): parsed from the command line
+    they pass type checks, then hang or poison the work (``--fps inf`` spun forever)."""
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        flag = f"--{_prefix}{f.name}".replace("_", "-")
+        items = value if isinstance(value, (tuple, list)) else (value,)
+        for v in items:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ConfigError(f"{flag} must be a finite number, got {v}", fix="pass a finite value")
+        if dataclasses.is_dataclass(value):
+            check_finite(value, f"{_prefix}{f.name}.")
 
 
 def _hints(cls: type) -> dict[str, Any]:

@@ -76,6 +76,11 @@ CASES: dict[str, Case] = {
     "train: --timestamp ..": Case(
         "train", (*TRAIN, "--data", "{scene}", "--timestamp", ".."), "--timestamp must be one plain"
     ),
+    "train: --pipeline.lambda-depth inf": Case(
+        "train",
+        (*TRAIN, "--data", "{scene}", "--pipeline.lambda-depth", "inf"),
+        "--pipeline.lambda-depth must be a finite number",
+    ),
     "train: negative --max-steps": Case(
         "train", (*TRAIN, "--data", "{scene}", "--max-steps", "-5"), "--max-steps must be >= 1"
     ),
@@ -182,7 +187,17 @@ CASES: dict[str, Case] = {
     "render: --fps 0": Case(
         "render",
         ("--load-config", "{config}", "--path", "orbit", "--fps", "0", "--output-dir", "{fx}/r"),
-        "--fps must be positive",
+        "--fps must be in (0, 1000]",
+    ),
+    "render: --fps inf (spun forever in the video writer)": Case(
+        "render",
+        ("--load-config", "{config}", "--path", "orbit", "--fps", "inf", "--output-dir", "{fx}/r"),
+        "--fps must be a finite number",
+    ),
+    "render: --fps 1e308": Case(
+        "render",
+        ("--load-config", "{config}", "--path", "orbit", "--fps", "1e308", "--output-dir", "{fx}/r"),
+        "--fps must be in (0, 1000]",
     ),
     "render: --output-dir is a file": Case(
         "render", ("--load-config", "{config}", "--output-dir", "{fx}/a_file"), "--output-dir is a file"
@@ -193,6 +208,16 @@ CASES: dict[str, Case] = {
         "--device must be auto, cpu, cuda or cuda:N",
     ),
     # ------------------------------------------------------------------------------ td-synth
+    "synth: haze --beta nan": Case(
+        "synth",
+        ("haze", "--data", "{scene}", "--output-dir", "{fx}/h", "--beta", "nan"),
+        "--beta must be a finite number",
+    ),
+    "synth: haze --airlight with inf": Case(
+        "synth",
+        ("haze", "--data", "{scene}", "--output-dir", "{fx}/h", "--airlight", "0.8", "inf", "0.8"),
+        "--airlight must be a finite number",
+    ),
     "synth: scene --width 0": Case(
         "synth", ("scene", "--output-dir", "{fx}/s", "--width", "0"), "--width must be >= 1"
     ),

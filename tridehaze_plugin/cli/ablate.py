@@ -29,6 +29,7 @@ from pipelines.experiments.ablation import FAMILIES, plan
 from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
 from pipelines.experiments.tables import bar_plot, claims_table, csv_text, markdown_table
 from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.config import check_finite
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -99,6 +100,7 @@ def hazy_input_psnr(scene: Path) -> float | None:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(AblateArgs, args=sys.argv[1:] if argv is None else argv, prog="td-ablate")
+    check_finite(args)
     _check(args)
     families = list(dict.fromkeys(args.families))
     variants = plan(families)

@@ -28,6 +28,7 @@ from pipelines.engine.run_config import write_text_atomic
 from pipelines.engine.run_loader import load_run
 from pipelines.evaluation.report import markdown_report, side_by_side
 from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.config import check_finite
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -73,6 +74,7 @@ def _lpips(mode: str) -> tuple[object | None, dict[str, object]]:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(EvalArgs, args=sys.argv[1:] if argv is None else argv, prog="td-eval")
+    check_finite(args)
     out_json = args.output_path or args.load_config.parent / "eval" / f"{args.split}.json"
     if out_json.suffix.lower() != ".json":
         raise ConfigError(

@@ -48,6 +48,7 @@ from pipelines.engine.run_loader import load_run
 from pipelines.evaluation.camera_paths import make_path
 from pipelines.evaluation.visualize import UNIT_RANGE, to_png, value_range
 from tridehaze_plugin.cli.common import check_output_folder, run_cli
+from tridehaze_plugin.config import check_finite
 from tridehaze_plugin.errors import ConfigError, UserError
 
 SIDE_BY_SIDE = "side-by-side"
@@ -210,6 +211,7 @@ def render_path(args: RenderArgs, run, wanted: list[str], indices: list[int]) ->
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(RenderArgs, args=sys.argv[1:] if argv is None else argv, prog="td-render")
+    check_finite(args)
     check_output_folder(args.output_dir)
     device = _device(args.device)
     if args.path != "views":
@@ -217,8 +219,8 @@ def main(argv: list[str] | None = None) -> None:
             raise ConfigError(
                 f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 120"
             )
-        if not args.fps > 0:
-            raise ConfigError(f"--fps must be positive, got {args.fps}", fix="pass e.g. --fps 30")
+        if not 0 < args.fps <= 1000:  # a video writer cannot use more (1e308 left an empty folder)
+            raise ConfigError(f"--fps must be in (0, 1000], got {args.fps:g}", fix="pass e.g. --fps 30")
     run = load_run(args.load_config, device=device)
     wanted = _check(args, run.pipeline.output_names())
     split = args.split or ("test" if args.path == "views" else "train")
