@@ -69,6 +69,7 @@ class AblateArgs:
 
 
 def _check(args: AblateArgs) -> None:
+    check_finite(args)
     if not args.scenes:
         raise ConfigError("no scenes given", fix="pass --scenes DIR [DIR ...]")
     names = [p.name for p in args.scenes]
@@ -100,7 +101,6 @@ def hazy_input_psnr(scene: Path) -> float | None:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(AblateArgs, args=sys.argv[1:] if argv is None else argv, prog="td-ablate")
-    check_finite(args)
     _check(args)
     families = list(dict.fromkeys(args.families))
     variants = plan(families)

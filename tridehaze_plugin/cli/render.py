@@ -209,18 +209,24 @@ def render_path(args: RenderArgs, run, wanted: list[str], indices: list[int]) ->
     )
 
 
+def _check_video_args(args: RenderArgs) -> None:
+    """Frame count and rate of a camera-path video (checked before the run is loaded)."""
+    if args.path == "views":
+        return
+    if args.num_frames < 2:
+        raise ConfigError(
+            f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 120"
+        )
+    if not 0 < args.fps <= 1000:  # a video writer cannot use more (1e308 left an empty folder)
+        raise ConfigError(f"--fps must be in (0, 1000], got {args.fps:g}", fix="pass e.g. --fps 30")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(RenderArgs, args=sys.argv[1:] if argv is None else argv, prog="td-render")
     check_finite(args)
     check_output_folder(args.output_dir)
     device = _device(args.device)
-    if args.path != "views":
-        if args.num_frames < 2:
-            raise ConfigError(
-                f"--num-frames must be at least 2, got {args.num_frames}", fix="pass e.g. --num-frames 120"
-            )
-        if not 0 < args.fps <= 1000:  # a video writer cannot use more (1e308 left an empty folder)
-            raise ConfigError(f"--fps must be in (0, 1000], got {args.fps:g}", fix="pass e.g. --fps 30")
+    _check_video_args(args)
     run = load_run(args.load_config, device=device)
     wanted = _check(args, run.pipeline.output_names())
     split = args.split or ("test" if args.path == "views" else "train")
