@@ -73,5 +73,5 @@ def test_views_side_by_side_and_errors(tri_run, tmp_path):
         render_main(["--load-config", str(tri_run), "--path", "orbit", "--num-frames", "1"])
     with pytest.raises(UserError, match="also side-by-side"):
         render_main(["--load-config", str(tri_run), "--path", "orbit", "--outputs", "fog"])
-    with pytest.raises(UserError, match="fps must be positive"):
+    with pytest.raises(UserError, match=r"fps must be in \(0, 1000\]"):
         render_main(["--load-config", str(tri_run), "--path", "orbit", "--fps", "0"])
