@@ -80,7 +80,8 @@ class SceneConfig:
     test_every: int = 8
     """Views 0, N, 2N, ... form the test split (0: no test views)."""
     overwrite: bool = False
-    """Replace a non-empty output folder (the old one is kept until the new one is complete)."""
+    """Replace an output folder this same tool wrote before (a folder it did not write, or one
+    holding files it did not write, is refused); the old one stays until the new is complete."""
     threads: int = 1
     """Torch CPU threads while generating (1 is fastest on small images and shared machines; 0: torch default)."""
 
@@ -147,7 +148,7 @@ def sample_points(
 def generate_scene(cfg: SceneConfig) -> dict[str, Any]:
     """Render the scene of ``cfg`` into ``cfg.output_dir`` (staged, then renamed); returns the metadata."""
     cfg.check()
-    with torch_threads(cfg.threads), staged_output(cfg.output_dir, cfg.overwrite) as tmp:
+    with torch_threads(cfg.threads), staged_output(cfg.output_dir, cfg.overwrite, "td-synth") as tmp:
         meta = _render_all(cfg, tmp)
     return meta
 

@@ -78,7 +78,8 @@ class HazeConfig:
     seed: int = 0
     """Seed of the heterogeneous field."""
     overwrite: bool = False
-    """Replace a non-empty output folder (the old one stays until the new one is complete)."""
+    """Replace an output folder this same tool wrote before (a folder it did not write, or one
+    holding files it did not write, is refused); the old one stays until the new is complete."""
     cache_dir: Path | None = None
     """Cache for undistorted / downscaled copies (default: $TRIDEHAZE_CACHE or ~/.cache/tridehaze)."""
     threads: int = 1
@@ -206,7 +207,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
     which passes it in (this component never imports upward)."""
     cfg.check()
     root = check_root(cfg.data)
-    out = check_output_dir(cfg.output_dir, cfg.overwrite)
+    out = check_output_dir(cfg.output_dir, cfg.overwrite, "td-synth")
     if out == root or root in out.parents:
         raise UserError("--output-dir must be outside the dataset folder", where=str(out))
     t0 = time.perf_counter()
@@ -240,7 +241,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
         field = WaveField.make(cfg.heterogeneous, cfg.feature_size * median_depth, cfg.seed)
         taus = [field.optical_depth(o, d, dist) for (o, d, _), dist in zip(rays, dists, strict=True)]
         beta = _solve_beta(cfg, taus)
-        with staged_output(out, cfg.overwrite) as tmp:
+        with staged_output(out, cfg.overwrite, "td-synth") as tmp:
             meta = _write(cfg, scene, tmp, depths, taus, beta)
             meta.update(
                 source=str(root),

@@ -1,7 +1,10 @@
-"""Writing a dataset folder safely: staged in a temporary sibling folder, renamed into place at the end.
+"""Writing an output folder safely: staged in a temporary sibling folder, renamed into place at the end.
 
 An existing output folder is never damaged: a failed or interrupted run leaves it as it was, and
-``overwrite`` swaps the new folder in only once it is complete.
+``overwrite`` swaps the new folder in only once it is complete. ``overwrite`` replaces only a folder
+the same tool wrote before: every folder written here carries a manifest (:data:`MANIFEST`) naming
+the tool and each file it wrote, and a folder without one, from another tool, or holding anything
+the manifest does not list (a run, a dataset, a user's notes) is refused rather than deleted.
 """
 
 from __future__ import annotations
@@ -31,24 +34,64 @@ GL_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 """OpenCV <-> OpenGL camera axes (self-inverse): nerfstudio's ``transform_matrix`` is OpenGL."""
 
 
-def check_output_dir(out: Path, overwrite: bool, flag: str = "--output-dir") -> Path:
-    """The output folder as an absolute path; UserError if it cannot (or must not) be written."""
+MANIFEST = ".tridehaze-output.json"
+"""Written last into every output folder: ``{"tool": ..., "files": [relative paths]}``."""
+
+
+def check_output_dir(out: Path, overwrite: bool, tool: str, flag: str = "--output-dir") -> Path:
+    """The output folder as an absolute path; UserError if it cannot (or must not) be written.
+
+    ``tool`` names the writer (``td-export``): ``overwrite`` may only replace that tool's own folder.
+    """
     out = Path(os.path.expanduser(str(out))).absolute()
     if out.exists() and not out.is_dir():
         raise UserError(f"{flag} is a file, not a folder", where=str(out), fix="pass a folder path")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise UserError(
+                "output folder exists and is not empty",
+                where=str(out),
+                fix="pick a new folder, or pass --overwrite to replace it",
+            )
+        _check_replaceable(out, tool)
+    return out
+
+
+def _check_replaceable(out: Path, tool: str) -> None:
+    """UserError unless ``out`` holds exactly what ``tool`` wrote there (its manifest says so)."""
+    fix = "pick a new or empty folder (--overwrite replaces only a folder this tool wrote)"
+    try:
+        manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        manifest = None
+    if not isinstance(manifest, dict) or manifest.get("tool") != tool:
+        raise UserError(f"--overwrite refused: {tool} did not write this folder", where=str(out), fix=fix)
+    listed = manifest.get("files")
+    listed = {str(f) for f in listed} if isinstance(listed, list) else set()
+    foreign = sorted(set(_files(out)) - listed - {MANIFEST})
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
         raise UserError(
-            "output folder exists and is not empty",
+            f"--overwrite refused: the folder holds {len(foreign)} file(s) {tool} did not write ({shown})",
             where=str(out),
-            fix="pick a new folder, or pass --overwrite to replace it",
+            fix="move them away first, or " + fix,
         )
+
+
+def _files(root: Path) -> list[str]:
+    """Every non-folder entry under ``root`` (links not followed), relative, '/'-separated."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        rel = Path(dirpath).relative_to(root)
+        links = [d for d in dirnames if os.path.islink(os.path.join(dirpath, d))]
+        out += [(rel / name).as_posix() for name in [*filenames, *links]]
     return out
 
 
 @contextmanager
-def staged_output(out: Path, overwrite: bool, flag: str = "--output-dir") -> Iterator[Path]:
+def staged_output(out: Path, overwrite: bool, tool: str, flag: str = "--output-dir") -> Iterator[Path]:
     """Yield a temporary folder next to ``out``; on success it replaces ``out`` (atomic rename)."""
-    out = check_output_dir(out, overwrite, flag)
+    out = check_output_dir(out, overwrite, tool, flag)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
@@ -60,7 +103,8 @@ def staged_output(out: Path, overwrite: bool, flag: str = "--output-dir") -> Ite
         ) from None
     try:
         yield tmp
-        _commit(tmp, out, overwrite)
+        write_json(tmp / MANIFEST, {"tool": tool, "files": sorted(_files(tmp))})
+        _commit(tmp, out, overwrite, tool)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -81,12 +125,13 @@ def share_like_umask(path: Path) -> None:
         os.chmod(path, 0o666 & ~mask)
 
 
-def _commit(tmp: Path, out: Path, overwrite: bool) -> None:
+def _commit(tmp: Path, out: Path, overwrite: bool, tool: str) -> None:
     share_like_umask(tmp)
     old = None
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:  # appeared while we were writing
             raise UserError("output folder was filled by someone else while writing", where=str(out))
+        _check_replaceable(out, tool)  # again: it may have changed while we were writing
         old = out.with_name(f".{out.name}.old-{uuid.uuid4().hex[:8]}")
         os.rename(out, old)
     elif out.is_dir():

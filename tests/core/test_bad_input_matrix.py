@@ -26,13 +26,14 @@ from rich.console import Console
 
 from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
+from tridehaze_plugin.cli.export import main as export_main
 from tridehaze_plugin.cli.train import parse_args
 
 
 @dataclass(frozen=True)
 class Case:
     command: str
-    """train, eval, render or synth."""
+    """train, eval, render, synth or export."""
     args: tuple[str, ...]
     """Arguments; ``{run}``, ``{config}``, ``{scene}`` and ``{fx}`` (prepared bad inputs) are filled in."""
     expect: str
@@ -264,6 +265,42 @@ CASES: dict[str, Case] = {
         ("gallery", "--output", "{fx}/empty", "--width", "8", "--height", "8"),
         "--output must end in .png",
     ),
+    # ------------------------------------------- --overwrite replaces only the tool's own output
+    "export: --overwrite onto the run folder": Case(
+        "export",
+        ("--load-config", "{config}", "--output-dir", "{run}", "--overwrite"),
+        "--overwrite refused: td-export did not write this folder",
+    ),
+    "export: --overwrite onto the folder that holds the run": Case(
+        "export",
+        ("--load-config", "{config}", "--output-dir", "{outputs}", "--overwrite"),
+        "--overwrite refused: td-export did not write this folder",
+    ),
+    "export: --overwrite onto a user's folder": Case(
+        "export",
+        ("--load-config", "{config}", "--output-dir", "{fx}/notes", "--overwrite"),
+        "--overwrite refused: td-export did not write this folder",
+    ),
+    "export: --overwrite onto a dataset written by td-synth": Case(
+        "export",
+        ("--load-config", "{config}", "--output-dir", "{scene}", "--overwrite"),
+        "--overwrite refused: td-export did not write this folder",
+    ),
+    "export: --overwrite onto its own export with a user's file added": Case(
+        "export",
+        ("--load-config", "{config}", "--output-dir", "{fx}/export_plus", "--overwrite"),
+        "--overwrite refused: the folder holds 1 file(s) td-export did not write (notes.md)",
+    ),
+    "synth: scene --overwrite onto the run folder": Case(
+        "synth",
+        ("scene", "--output-dir", "{run}", "--overwrite"),
+        "--overwrite refused: td-synth did not write this folder",
+    ),
+    "synth: haze --overwrite onto the run folder": Case(
+        "synth",
+        ("haze", "--data", "{scene}", "--output-dir", "{run}", "--beta", "0.1", "--overwrite"),
+        "--overwrite refused: td-synth did not write this folder",
+    ),
     "eval: unknown --device": Case(
         "eval", ("--load-config", "{config}", "--device", "tpu", *EVAL), "--device must be"
     ),
@@ -308,6 +345,10 @@ def world(tmp_path_factory) -> dict[str, Path]:
     meta = json.loads((_copy_scene(scene, fx / "bad_pose") / "transforms.json").read_text())
     meta["frames"][0]["transform_matrix"] = [[1.0, 0.0], [0.0, 1.0]]
     (fx / "bad_pose" / "transforms.json").write_text(json.dumps(meta))
+    (fx / "notes").mkdir()
+    (fx / "notes" / "todo.txt").write_text("mine\n")
+    export_main(["--load-config", str(run / "config.yml"), "--output-dir", str(fx / "export_plus")])
+    (fx / "export_plus" / "notes.md").write_text("mine\n")
     (fx / "unsafe").mkdir()
     (fx / "unsafe" / "config.yml").write_text("method_name: !!python/object/apply:os.system ['echo pwned']\n")
 
@@ -327,7 +368,10 @@ def world(tmp_path_factory) -> dict[str, Path]:
     (fx / "other_config" / "config.yml").write_text(text)
     text = (run_copy("data_gone") / "config.yml").read_text()
     (fx / "data_gone" / "config.yml").write_text(text.replace(str(scene), str(root / "deleted_scene")))
-    return {"run": run, "config": run / "config.yml", "scene": scene, "fx": fx, "root": root}
+    return {
+        "run": run, "config": run / "config.yml", "scene": scene, "fx": fx, "root": root,
+        "outputs": root / "outputs",
+    }  # fmt: skip
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[bytes | None, int]]:
@@ -339,9 +383,15 @@ def _snapshot(folder: Path) -> dict[str, tuple[bytes | None, int]]:
     return out
 
 
+def _guarded(world: dict[str, Path]) -> dict[str, dict[str, tuple[bytes | None, int]]]:
+    """The folders no case may change: the finished run, the dataset and the user's folders."""
+    fx = world["fx"]
+    return {str(p): _snapshot(p) for p in (world["run"], world["scene"], fx / "notes", fx / "export_plus")}
+
+
 @pytest.fixture(scope="module")
-def pristine(world) -> dict[str, tuple[bytes | None, int]]:
-    return _snapshot(world["run"])
+def pristine(world) -> dict[str, dict[str, tuple[bytes | None, int]]]:
+    return _guarded(world)
 
 
 def _run(case: Case, world: dict[str, Path]) -> subprocess.CompletedProcess:
@@ -397,7 +447,7 @@ def _check(case: Case, res: subprocess.CompletedProcess) -> None:
 
 def test_the_matrix_is_big_and_covers_every_command():
     per_command = {
-        c: sum(case.command == c for case in CASES.values()) for c in ("train", "eval", "render", "synth")
+        c: sum(case.command == c for case in CASES.values()) for c in ("train", "eval", "render", "synth", "export")
     }
     assert len(CASES) >= 24 and min(per_command.values()) >= 5, per_command
 
@@ -405,7 +455,7 @@ def test_the_matrix_is_big_and_covers_every_command():
 @pytest.mark.parametrize("name", list(CASES))
 def test_bad_input_is_one_line_exit_2_and_leaves_the_run_intact(batch, world, pristine, name):
     _check(CASES[name], batch[name])
-    assert _snapshot(world["run"]) == pristine, "the existing run folder was changed"
+    assert _guarded(world) == pristine, "an existing run, dataset or user folder was changed"
 
 
 @pytest.mark.parametrize("name", ["train: negative --max-steps", "eval: truncated checkpoint",
@@ -415,4 +465,4 @@ def test_the_real_entry_points_agree_with_the_batch(batch, world, pristine, name
     res = _run(CASES[name], world)
     _check(CASES[name], res)
     assert res.stderr.strip() == batch[name].stderr.strip()
-    assert _snapshot(world["run"]) == pristine
+    assert _guarded(world) == pristine

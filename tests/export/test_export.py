@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -223,3 +225,27 @@ def test_export_errors_are_one_line_and_write_nothing(tri_run, tmp_path, capsys)
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: run config not found") and err.count("\n") == 1
+
+
+def test_overwrite_replaces_only_a_folder_td_export_wrote(tri_run, tmp_path):
+    """Issue 22: ``--overwrite`` onto a folder holding a run and a user's file deleted both."""
+    top = tmp_path / "dir"
+    run = Path(shutil.copytree(tri_run.parent, top / "sub" / "run"))
+    (top / "important.txt").write_text("keep me")
+    before = sorted(p.relative_to(top) for p in top.rglob("*"))
+    for target in (top, run):  # a folder holding a run, and the run folder itself
+        with pytest.raises(UserError, match="--overwrite refused: td-export did not write this folder"):
+            export_main(
+                ["--load-config", str(run / "config.yml"), "--output-dir", str(target), "--overwrite"]
+            )
+    assert sorted(p.relative_to(top) for p in top.rglob("*")) == before
+    assert (top / "important.txt").read_text() == "keep me"
+
+    out = tmp_path / "export"
+    export_main(["--load-config", str(tri_run), "--output-dir", str(out)])
+    export_main(["--load-config", str(tri_run), "--output-dir", str(out), "--overwrite"])  # its own: fine
+    assert (out / "splat.ply").is_file() and (out / "export.json").is_file()
+    (out / "notes.md").write_text("mine")
+    with pytest.raises(UserError, match=r"holds 1 file\(s\) td-export did not write \(notes.md\)"):
+        export_main(["--load-config", str(tri_run), "--output-dir", str(out), "--overwrite"])
+    assert (out / "notes.md").read_text() == "mine"

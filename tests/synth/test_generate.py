@@ -88,7 +88,7 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
     b = make_tiny(tmp_path / "b", num_views=2, layout="street", haze="height")
     c = make_tiny(tmp_path / "c", num_views=2, layout="street", haze="height", seed=1)
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file() and p.name != "synth_meta.json")
-    assert len(files) == 1 + 1 + 2 * 5  # transforms, ply, 5 files per view
+    assert len(files) == 1 + 1 + 2 * 5 + 1  # transforms, ply, 5 files per view, the output manifest
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     assert (a / "images/0001.png").read_bytes() != (c / "images/0001.png").read_bytes()
@@ -101,8 +101,18 @@ def test_existing_output_is_protected(tmp_path):
     with pytest.raises(UserError, match="not empty"):
         make_tiny(out, num_views=2)
     assert (out / "keep.txt").read_text() == "mine"
-    make_tiny(out, num_views=2, overwrite=True)
-    assert not (out / "keep.txt").exists() and (out / "transforms.json").is_file()
+    with pytest.raises(UserError, match="--overwrite refused: td-synth did not write this folder"):
+        make_tiny(out, num_views=2, overwrite=True)  # --overwrite never deletes a folder we did not write
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+    (out / "keep.txt").unlink()
+    make_tiny(out, num_views=2)
+    first = (out / "transforms.json").read_bytes()
+    make_tiny(out, num_views=3, overwrite=True)  # our own dataset: replaced
+    assert (out / "transforms.json").read_bytes() != first
+    (out / "images" / "notes.txt").write_text("mine")  # a file we did not write, deep inside
+    with pytest.raises(UserError, match=r"holds 1 file\(s\) td-synth did not write \(images/notes.txt\)"):
+        make_tiny(out, num_views=2, overwrite=True)
+    assert (out / "images" / "notes.txt").read_text() == "mine"
     assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no temporary folders left behind
 
 

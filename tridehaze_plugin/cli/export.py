@@ -45,7 +45,8 @@ class ExportArgs:
     light_resolution: int = 16
     """Medium-light grid samples per axis (six view directions) in medium.npz."""
     overwrite: bool = False
-    """Replace a non-empty output folder (the old one stays until the new one is complete)."""
+    """Replace an output folder this same tool wrote before (a folder it did not write, or one
+    holding files it did not write, is refused); the old one stays until the new is complete."""
     device: str = "cpu"
     """Torch device used to reload the run (cpu, cuda or auto)."""
 
@@ -63,7 +64,7 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
             where=str(args.load_config),
             fix="pass the config.yml of a td-train run folder",
         )
-    check_output_dir(args.output_dir, args.overwrite)
+    check_output_dir(args.output_dir, args.overwrite, "td-export")
     run = load_run(args.load_config, device=resolve_device(args.device))
     pipeline = run.pipeline
     model = pipeline.scene_gaussians()
@@ -82,7 +83,7 @@ def export(args: ExportArgs, console: Console | None = None) -> dict[str, Any]:
         "sh_degree": splat.sh_degree,
         "transform": run.datamanager.scene.transform.to_dict(),
     }
-    with staged_output(args.output_dir, args.overwrite) as tmp:
+    with staged_output(args.output_dir, args.overwrite, "td-export") as tmp:
         summary["ply_bytes"] = write_splat_ply(tmp / "splat.ply", splat)
         summary["medium"] = None
         if medium is not None and medium.has_medium and (medium.is_field or medium.renders_with_gaussians):

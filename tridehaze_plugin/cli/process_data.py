@@ -49,7 +49,8 @@ class ImagesArgs:
     """New dataset folder (images/ + sparse/0/); must be new or empty unless --overwrite."""
     sfm: Annotated[SfmOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=SfmOptions)
     overwrite: bool = False
-    """Replace a non-empty output folder (the old one stays until the new one is complete)."""
+    """Replace an output folder this same tool wrote before (a folder it did not write, or one
+    holding files it did not write, is refused); the old one stays until the new is complete."""
 
 
 @dataclass
@@ -66,7 +67,8 @@ class VideoArgs:
         default_factory=lambda: SfmOptions(camera_mode="single")
     )
     overwrite: bool = False
-    """Replace a non-empty output folder (the old one stays until the new one is complete)."""
+    """Replace an output folder this same tool wrote before (a folder it did not write, or one
+    holding files it did not write, is refused); the old one stays until the new is complete."""
 
 
 Command = (
@@ -171,7 +173,10 @@ def process(args: ImagesArgs | VideoArgs, console: Console | None = None) -> dic
         names = list_images(args.data)
     t_start = time.perf_counter()
     extra: dict[str, Any] = {}
-    with staged_output(args.output_dir, args.overwrite) as tmp, _progress(console) as progress:
+    with (
+        staged_output(args.output_dir, args.overwrite, "td-process-data") as tmp,
+        _progress(console) as progress,
+    ):
         reporter = RichReporter(console, progress if console.is_terminal else None)
         work = tmp / ".work"
         if is_video:
