@@ -447,7 +447,8 @@ def _check(case: Case, res: subprocess.CompletedProcess) -> None:
 
 def test_the_matrix_is_big_and_covers_every_command():
     per_command = {
-        c: sum(case.command == c for case in CASES.values()) for c in ("train", "eval", "render", "synth", "export")
+        c: sum(case.command == c for case in CASES.values())
+        for c in ("train", "eval", "render", "synth", "export")
     }
     assert len(CASES) >= 24 and min(per_command.values()) >= 5, per_command
 

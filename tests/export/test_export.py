@@ -182,7 +182,7 @@ def test_export_normalized_frame_and_no_medium(plain_run, tmp_path, capsys):
     out = tmp_path / "plain"
     export_main(["--load-config", str(plain_run), "--output-dir", str(out), "--frame", "normalized"])
     assert "no medium: only the PLY" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["export.json", "splat.ply"]
+    assert sorted(p.name for p in out.iterdir()) == [".tridehaze-output.json", "export.json", "splat.ply"]
     model = load_run(plain_run).pipeline.model
     ply = read_splat_ply(out / "splat.ply")
     np.testing.assert_array_equal(ply.means, model.means.detach().numpy())

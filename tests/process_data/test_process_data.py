@@ -154,7 +154,12 @@ def test_statue_subset_registers_with_enhanced_matching(tmp_path, capsys):
     assert summary["mean_reprojection_error"] < 1.5 and summary["options"]["enhance"] == "clahe"
     for p in sorted(photos.iterdir()):  # originals, not the enhanced copies
         assert (out / "images" / p.name).read_bytes() == p.read_bytes()
-    assert sorted(q.name for q in out.iterdir()) == ["images", "sfm_summary.json", "sparse"]
+    assert sorted(q.name for q in out.iterdir()) == [
+        ".tridehaze-output.json",
+        "images",
+        "sfm_summary.json",
+        "sparse",
+    ]
     scene = load_scene(DataConfig(data=out, cache_dir=tmp_path / "cache"))
     assert len(scene) == SUBSET and scene.parser == "colmap" and scene.points is not None
     shipped = camera_poses(require_real("statue") / "sparse" / "0")
