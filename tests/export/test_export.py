@@ -141,6 +141,7 @@ def test_export_tri_dehaze_run(tri_run, tmp_path, capsys):
     assert names == sorted(
         [
             "splat.ply",
+            ".tridehaze-output.json",
             "medium.npz",
             "export.json",
             "extinction_xy.png",
