@@ -9,6 +9,7 @@ import contextlib
 import json
 import math
 import random
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from pipelines.engine.evaluate import evaluate_split
 from pipelines.engine.live_view import LiveView, LiveViewProvider
 from pipelines.engine.optimizers import Optimizers
 from pipelines.engine.run_config import save_config, write_text_atomic
+from pipelines.engine.run_lock import RunLock
 from tridehaze_plugin.errors import ConfigError, UserError
 
 
@@ -49,16 +51,22 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def make_run_dir(cfg: TrainerConfig, scene_name: str) -> Path:
-    """OUTPUT/<scene>/<method>/<timestamp>/, never reusing an existing folder."""
+def make_run_dir(cfg: TrainerConfig, scene_name: str) -> tuple[Path, Path]:
+    """OUTPUT/<scene>/<method>/<timestamp>/, never reusing an existing folder.
+
+    Returns the run folder and the outermost folder this call created (what to remove if the
+    start fails)."""
     stamp = cfg.timestamp or datetime.now().strftime("%Y-%m-%d_%H%M%S")
     base = cfg.output_dir / scene_name / cfg.method_name / stamp
     run_dir, n = base, 1
     while run_dir.exists():
         run_dir = base.with_name(f"{stamp}-{n}")
         n += 1
+    created = run_dir
+    while not created.parent.exists():
+        created = created.parent
     run_dir.mkdir(parents=True)
-    return run_dir
+    return run_dir, created
 
 
 def optimization_step(
@@ -127,9 +135,30 @@ class Trainer:
         self.viewer: LiveView | None = None
         """The live viewer (``--vis``): it renders under ``viewer.lock`` and sees every step via
         ``viewer.update``, which blocks while paused from the browser."""
+        self.run_lock: RunLock | None = None
+        """Held while this trainer may write its run folder (one writer per run)."""
+        self._made_run_dir: Path | None = None
 
     def setup(self) -> None:
+        """Build everything; on failure release the run folder and remove one this call made
+        (a start that fails leaves no half-made run folder behind)."""
+        try:
+            self._setup()
+        except BaseException:
+            self._release_run()
+            if self._made_run_dir is not None:
+                shutil.rmtree(self._made_run_dir, ignore_errors=True)
+            raise
+
+    def _release_run(self) -> None:
+        if self.run_lock is not None:
+            self.run_lock.release()
+            self.run_lock = None
+
+    def _setup(self) -> None:
         cfg = self.config
+        if self.resume is not None:  # before reading its checkpoint: another writer may be mid-save
+            self.run_lock = RunLock(self.resume).acquire()
         if self.live_view is not None:
             self.live_view.preflight(cfg)
         if cfg.threads is not None:
@@ -155,7 +184,8 @@ class Trainer:
             self.optimizers.load_state_dict(self._payload["optimizers"])
             del self._payload
         else:
-            self.run_dir = make_run_dir(cfg, scene.name)
+            self.run_dir, self._made_run_dir = make_run_dir(cfg, scene.name)
+            self.run_lock = RunLock(self.run_dir).acquire()
         save_config(cfg, self.run_dir / "config.yml")
         write_text_atomic(
             self.run_dir / "dataparser_transforms.json", json.dumps(scene.transform.to_dict(), indent=2)
@@ -173,6 +203,7 @@ class Trainer:
             self.console.print(f"resuming at step {self.start_step}/{cfg.max_steps}")
         if self.live_view is not None:
             self.viewer = self.live_view.start(cfg, self.pipeline, self.datamanager, self.console)
+        self._made_run_dir = None  # started: from here on the folder holds a run
 
     def _restore(self) -> None:
         """Load the newest checkpoint of the run being resumed into the freshly built pipeline."""
@@ -211,6 +242,7 @@ class Trainer:
         finally:
             if self.viewer is not None:
                 self.viewer.close()
+            self._release_run()
 
     def _train(self) -> TrainResult:
         cfg = self.config

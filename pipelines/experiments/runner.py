@@ -27,10 +27,23 @@ from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.ablation import Variant
 
 
+RUNNER_FLAGS = ("--data", "--output-dir", "--timestamp", "--max-steps", "--seed", "--threads")
+"""Flags the runner sets itself after a variant's overrides (a variant setting one would be
+silently overruled): steps go in ``Variant.max_steps``, the seed in ``RunnerOptions.seed``."""
+
+
 @dataclass(frozen=True)
 class Job:
     scene: Path
     variant: Variant
+
+    def __post_init__(self) -> None:
+        taken = [a.split("=")[0] for a in self.variant.overrides if a.split("=")[0] in RUNNER_FLAGS]
+        if taken:
+            raise ValueError(
+                f"variant {self.variant.name!r}: {', '.join(taken)} in its overrides would be overruled "
+                "by the runner; use Variant.max_steps / RunnerOptions (seed, threads) instead"
+            )
 
 
 @dataclass

@@ -142,3 +142,15 @@ def test_resume_keeps_the_variants_own_step_count(tmp_path):
     write_text_atomic(runner.state_path(job), json.dumps({"other": 1}))
     cmd = runner._train_command(job, rd)
     assert "--resume" not in cmd and not rd.exists() and cmd[cmd.index("--max-steps") + 1] == "1000"
+
+
+@pytest.mark.parametrize("flag", ["--seed", "--max-steps", "--threads", "--seed=7"])
+def test_a_variant_cannot_set_a_flag_the_runner_overrules(flag, tmp_path):
+    """A variant's ``--seed 7`` used to be overruled silently by the runner's own ``--seed 42``
+    (two 'seeds' that were one run)."""
+    from pipelines.experiments.ablation import Variant
+    from pipelines.experiments.runner import Job
+
+    with pytest.raises(ValueError, match=f"{flag.split('=')[0]} in its overrides would be overruled"):
+        Job(tmp_path, Variant("s7", "tri-dehaze", (flag, "7") if "=" not in flag else (flag,)))
+    Job(tmp_path, Variant("ok", "tri-dehaze", ("--pipeline.freeze-fraction", "0.4")))

@@ -1,0 +1,106 @@
+"""One writer per run folder (issue 22): a second td-train on a run that is being written is refused
+with one clear line; a lock left by a killed process does not block a later resume; a start that
+fails leaves no half-made run folder."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.trainer import Trainer
+from tests.tiny_scenes import tiny_hazy_scene
+from tridehaze_plugin.cli.train import parse_args
+from tridehaze_plugin.errors import UserError
+
+BUSY = "another td-train process is writing this run folder"
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    return tiny_hazy_scene(
+        tmp_path_factory.mktemp("lock") / "scene", layout="room", haze="homogeneous", seed=4
+    )
+
+
+def _cfg(scene: Path, out: Path, steps: int = 4, *extra: str):
+    return parse_args([
+        "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--max-steps", str(steps),
+        "--steps-per-save", "2", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
+        "--threads", "1", "--device", "cpu", *extra,
+    ])  # fmt: skip
+
+
+def _trainer(cfg, resume=None) -> Trainer:
+    return Trainer(cfg, console=Console(quiet=True), resume=resume)
+
+
+def test_a_second_writer_is_refused_and_the_first_finishes(scene, tmp_path):
+    first = _trainer(_cfg(scene, tmp_path, 4))
+    first.setup()  # a run in progress: holds its folder
+    run = first.run_dir
+    with pytest.raises(UserError, match=BUSY):
+        _trainer(_cfg(scene, tmp_path, 6), resume=run).setup()  # td-train --resume while it trains
+    first.train()
+    assert load_checkpoint(latest_checkpoint(run))["step"] == 4  # the refused resume broke nothing
+    again = _trainer(_cfg(scene, tmp_path, 6), resume=run)  # finished: the folder is free again
+    again.train()
+    assert load_checkpoint(latest_checkpoint(run))["step"] == 6
+    steps = [line for line in (run / "logs" / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    assert len(steps) == len(set(steps))  # no step logged twice
+
+
+def test_two_resumes_of_one_run_cannot_both_write(scene, tmp_path):
+    run = _trainer(_cfg(scene, tmp_path, 2)).train().run_dir
+    a = _trainer(_cfg(scene, tmp_path, 4), resume=run)
+    a.setup()
+    with pytest.raises(UserError, match=BUSY):
+        _trainer(_cfg(scene, tmp_path, 4), resume=run).setup()
+    a.train()
+    assert load_checkpoint(latest_checkpoint(run))["step"] == 4
+
+
+def test_a_lock_left_by_a_killed_process_does_not_block_resume(scene, tmp_path):
+    run = _trainer(_cfg(scene, tmp_path, 2)).train().run_dir
+    holder = textwrap.dedent(f"""
+        import sys, time
+        from pipelines.engine.run_lock import RunLock
+        lock = RunLock({str(run)!r}).acquire()
+        print("held", flush=True)
+        time.sleep(600)
+    """)
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True, cwd=root)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        with pytest.raises(UserError, match=BUSY):
+            _trainer(_cfg(scene, tmp_path, 4), resume=run).setup()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        proc.kill()
+    _trainer(_cfg(scene, tmp_path, 4), resume=run).train()  # the kernel dropped the dead holder's lock
+    assert load_checkpoint(latest_checkpoint(run))["step"] == 4
+
+
+def test_a_start_that_fails_leaves_no_run_folder(scene, tmp_path, monkeypatch):
+    import pipelines.engine.trainer as trainer_module
+
+    def disk_full(*_a, **_k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(trainer_module, "save_config", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        _trainer(_cfg(scene, tmp_path / "out", 2)).setup()
+    assert not (tmp_path / "out").exists()  # nor the scene / method folders made for it
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(OSError, match="No space left"):
+        _trainer(_cfg(scene, tmp_path / "kept", 2)).setup()
+    assert (tmp_path / "kept").is_dir() and not any((tmp_path / "kept").iterdir())  # existed: stays
