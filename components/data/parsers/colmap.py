@@ -17,6 +17,7 @@ import numpy as np
 from components.data.config import DataConfig
 from components.data.images import is_image_file
 from components.data.parsers.base import DataParser
+from components.data.parsers.colmap_binary import check_binary_model
 from components.data.scene import Frame, ParsedScene
 from tridehaze_plugin.errors import DataError
 from tridehaze_plugin.registry import register
@@ -60,11 +61,12 @@ class ColmapParser(DataParser):
                 where=str(images_dir),
                 fix="put the input photos in images/",
             )
+        check_binary_model(sparse)  # pycolmap trusts the counts: a bad one allocates without bound
         try:
             rec = pycolmap.Reconstruction(str(sparse))
         except Exception as exc:  # noqa: BLE001 - pycolmap raises assorted types for bad files
             raise DataError(
-                f"cannot read the COLMAP model ({type(exc).__name__}: {exc})",
+                f"cannot read the COLMAP model ({type(exc).__name__}: {str(exc)[:200]})",
                 where=str(sparse),
                 fix="re-export the model (colmap model_converter) or check the files are complete",
             ) from None
