@@ -18,7 +18,7 @@ from typing import Any, Literal, Union, get_args, get_origin
 
 import yaml
 
-from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.errors import ConfigError, shown
 from tridehaze_plugin.registry import REGISTRY, Registry
 
 
@@ -145,10 +145,10 @@ def _coerce(raw: Any, tp: Any, current: Any, where: str) -> Any:
                 return _coerce(raw, arg, current if _isinstance_loose(current, arg) else None, where)
             except ConfigError as exc:
                 errors.append(exc.what)
-        raise ConfigError(f"value {raw!r} matches none of {tp}: {'; '.join(errors)}", where=where)
+        raise ConfigError(f"value {shown(raw)} matches none of {tp}: {'; '.join(errors)}", where=where)
     if origin is Literal:
         if raw not in get_args(tp):
-            raise ConfigError(f"value {raw!r} is not one of {list(get_args(tp))}", where=where)
+            raise ConfigError(f"value {shown(raw)} is not one of {list(get_args(tp))}", where=where)
         return raw
     if origin in (list, tuple):
         return _coerce_sequence(raw, tp, where)
@@ -187,23 +187,23 @@ def _coerce_scalar(raw: Any, tp: Any, where: str) -> Any:
         return Path(raw)
     if tp is bool:
         if not isinstance(raw, bool):
-            raise ConfigError(f"expected true/false, got {raw!r}", where=where)
+            raise ConfigError(f"expected true/false, got {shown(raw)}", where=where)
         return raw
     if tp is int:
         if isinstance(raw, bool) or not isinstance(raw, int):
-            raise ConfigError(f"expected an integer, got {raw!r}", where=where)
+            raise ConfigError(f"expected an integer, got {shown(raw)}", where=where)
         return raw
     if tp is float:
         if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-            raise ConfigError(f"expected a number, got {raw!r}", where=where)
+            raise ConfigError(f"expected a number, got {shown(raw)}", where=where)
         return float(raw)
     if tp is str:
         if not isinstance(raw, str):
-            raise ConfigError(f"expected a string, got {raw!r}", where=where)
+            raise ConfigError(f"expected a string, got {shown(raw)}", where=where)
         return raw
     if tp is type(None):
         if raw is not None:
-            raise ConfigError(f"expected null, got {raw!r}", where=where)
+            raise ConfigError(f"expected null, got {shown(raw)}", where=where)
         return None
     raise ConfigError(f"unsupported config type {tp}", where=where)
 
@@ -225,16 +225,40 @@ def dump_yaml(cfg: Any, header: dict[str, Any] | None = None) -> str:
     return yaml.safe_dump(data, sort_keys=False)
 
 
+class _AliasFound(Exception):
+    pass
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """``safe_load`` that refuses aliases (``*name``): td-* config files never need them, and a
+    few nested ones (an alias bomb) expand to gigabytes."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise _AliasFound(f"*{event.anchor} at line {event.start_mark.line + 1}")
+        return super().compose_node(parent, index)
+
+
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
-    """Read a YAML mapping with ``yaml.safe_load`` (no Python tags, no object construction)."""
+    """Read a YAML mapping the ``safe_load`` way (no Python tags, no object construction), with no
+    aliases and bounded nesting."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}", fix="pass the config.yml inside a run folder")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=_NoAliasLoader)  # noqa: S506 - safe loader
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConfigError(f"config file is not valid YAML: {first}", where=str(path)) from None
+    except _AliasFound as exc:
+        raise ConfigError(
+            f"config file uses a YAML alias ({exc}); td-* config files never do",
+            where=str(path),
+            fix="write the value out in full",
+        ) from None
+    except RecursionError:
+        raise ConfigError("config file is nested too deeply to be a td-* config", where=str(path)) from None
     if not isinstance(data, dict):
         raise ConfigError("config file does not hold a mapping", where=str(path))
     return data

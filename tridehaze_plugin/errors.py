@@ -8,7 +8,22 @@ surface with a traceback for developers.
 
 from __future__ import annotations
 
+import reprlib
+from typing import Any
+
 EXIT_USER_ERROR = 2
+MAX_MESSAGE = 600
+"""Characters of an error line: a message quoting user data must stay one readable line."""
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict = 3, 6, 6, 6
+_REPR.maxstring, _REPR.maxother, _REPR.maxlong = 80, 80, 40
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` bounded in size and work, for quoting user data in an error message (a YAML
+    alias bomb or a 100k-deep list must not be expanded to print it)."""
+    return _REPR.repr(value)
 
 
 class UserError(Exception):
@@ -27,7 +42,7 @@ class UserError(Exception):
         msg = " ".join(parts)
         if self.fix:
             msg += f"; {self.fix}"
-        return msg
+        return msg if len(msg) <= MAX_MESSAGE else msg[: MAX_MESSAGE - 5] + " ..."
 
 
 class DataError(UserError):

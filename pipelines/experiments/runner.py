@@ -26,7 +26,6 @@ from pipelines.engine.checkpoint import latest_checkpoint
 from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.ablation import Variant
 
-
 RUNNER_FLAGS = ("--data", "--output-dir", "--timestamp", "--max-steps", "--seed", "--threads")
 """Flags the runner sets itself after a variant's overrides (a variant setting one would be
 silently overruled): steps go in ``Variant.max_steps``, the seed in ``RunnerOptions.seed``."""

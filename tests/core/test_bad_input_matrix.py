@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -125,6 +126,27 @@ CASES: dict[str, Case] = {
     ),
     "train: --load-config with python tags (unsafe YAML)": Case(
         "train", ("--load-config", "{fx}/unsafe/config.yml"), "config file is not valid YAML"
+    ),
+    # ------------------------------------- runaway memory or time on small files (run under a cap)
+    "train: --load-config with a YAML alias bomb in max_steps": Case(
+        "train", ("--load-config", "{fx}/bomb/config.yml"), "config file uses a YAML alias (*a at line"
+    ),
+    "train: --load-config nested 100k deep": Case(
+        "train", ("--load-config", "{fx}/deep/config.yml"), "config file is nested too deeply"
+    ),
+    "train: --load-config with a megabyte-long value": Case(
+        "train", ("--load-config", "{fx}/long_value/config.yml"), "expected an integer, got 'xxxxx"
+    ),
+    "train: transforms.json nested 100k deep": Case(
+        "train", (*TRAIN, "--data", "{fx}/deep_json"), "JSON nested too deeply"
+    ),
+    "eval: config.yml with a YAML alias bomb": Case(
+        "eval", ("--load-config", "{fx}/bomb/config.yml", *EVAL), "config file uses a YAML alias"
+    ),
+    "render: config.yml nested 100k deep": Case(
+        "render",
+        ("--load-config", "{fx}/deep/config.yml", "--output-dir", "{fx}/r"),
+        "config file is nested too deeply",
     ),
     # ------------------------------------------------------------------------------- td-eval
     "eval: missing config.yml": Case(
@@ -349,6 +371,17 @@ def world(tmp_path_factory) -> dict[str, Path]:
     (fx / "notes" / "todo.txt").write_text("mine\n")
     export_main(["--load-config", str(run / "config.yml"), "--output-dir", str(fx / "export_plus")])
     (fx / "export_plus" / "notes.md").write_text("mine\n")
+    levels = ["&a [1, 1, 1, 1, 1, 1, 1, 1, 1]"]  # 9 ** 9 integers once expanded
+    for i in range(1, 9):
+        levels.append(f"&{'abcdefghi'[i]} [" + ", ".join([f"*{'abcdefghi'[i - 1]}"] * 9) + "]")
+    for name, body in {
+        "bomb": f"max_steps: [{', '.join(levels)}]\n",
+        "deep": "max_steps: " + "[" * 100_000 + "]" * 100_000 + "\n",
+        "long_value": "method_name: tri-dehaze\nmax_steps: " + "x" * 1_000_000 + "\n",
+    }.items():
+        (fx / name).mkdir()
+        (fx / name / "config.yml").write_text(body)
+    (_copy_scene(scene, fx / "deep_json") / "transforms.json").write_text("[" * 100_000 + "]" * 100_000)
     (fx / "unsafe").mkdir()
     (fx / "unsafe" / "config.yml").write_text("method_name: !!python/object/apply:os.system ['echo pwned']\n")
 
@@ -394,6 +427,12 @@ def pristine(world) -> dict[str, dict[str, tuple[bytes | None, int]]]:
     return _guarded(world)
 
 
+def _cap_memory() -> None:
+    """4 GB of address space for the cases' process: a runaway case fails the test instead of
+    the machine (torch and pycolmap need about 1.3 GB)."""
+    resource.setrlimit(resource.RLIMIT_AS, (4 * 2**30, 4 * 2**30))
+
+
 def _run(case: Case, world: dict[str, Path]) -> subprocess.CompletedProcess:
     """One case in its own process (the real entry point, as a user runs it)."""
     args = [a.format(**{k: str(v) for k, v in world.items()}) for a in case.args]
@@ -404,6 +443,7 @@ def _run(case: Case, world: dict[str, Path]) -> subprocess.CompletedProcess:
         capture_output=True,
         text=True,
         timeout=300,
+        preexec_fn=_cap_memory,
         cwd=world["root"],
         env=env,
     )
@@ -428,7 +468,7 @@ def batch(world) -> dict[str, subprocess.CompletedProcess]:
     env.pop("TRIDEHAZE_PLUGINS", None)
     subprocess.run(
         [sys.executable, "-m", "tests.core.bad_input_batch", str(spec), str(out)],
-        cwd=Path(__file__).resolve().parents[2], env=env, check=True, timeout=900,
+        cwd=Path(__file__).resolve().parents[2], env=env, check=True, timeout=900, preexec_fn=_cap_memory,
     )  # fmt: skip
     results = json.loads(out.read_text())
     return {n: subprocess.CompletedProcess([], r["returncode"], "", r["stderr"]) for n, r in results.items()}

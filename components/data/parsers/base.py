@@ -20,7 +20,7 @@ from components.data.cameras import opengl_to_opencv
 from components.data.config import DataConfig
 from components.data.images import image_size
 from components.data.scene import ParsedScene
-from tridehaze_plugin.errors import DataError
+from tridehaze_plugin.errors import DataError, shown
 
 
 class DataParser:
@@ -57,6 +57,8 @@ def load_json(path: Path) -> dict[str, Any]:
         raise DataError(f"cannot read file ({exc})", where=str(path)) from None
     try:
         meta = json.loads(text)
+    except RecursionError:
+        raise DataError("JSON nested too deeply to be a dataset file", where=str(path)) from None
     except json.JSONDecodeError as exc:
         raise DataError(
             f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}",
@@ -137,7 +139,7 @@ def json_intrinsics(meta: dict[str, Any], image_path: Path, where: str) -> dict[
     model = str(meta.get("camera_model", "OPENCV")).upper()
     if model not in SUPPORTED_JSON_MODELS:
         raise DataError(
-            f"camera_model {model!r} is not supported",
+            f"camera_model {shown(model)} is not supported",
             where=where,
             fix=f"use one of {', '.join(SUPPORTED_JSON_MODELS)} (undistort fisheye/equirectangular images first)",
         )
@@ -188,5 +190,5 @@ def _num(meta: dict[str, Any], key: str, where: str) -> float | None:
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, int | float):
-        raise DataError(f"{key} must be a number, got {v!r}", where=where)
+        raise DataError(f"{key} must be a number, got {shown(v)}", where=where)
     return float(v)
