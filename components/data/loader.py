@@ -46,9 +46,9 @@ def load_scene(cfg: DataConfig) -> SceneData:
     geoms = [frame_geometry(f, cfg.downscale) for f in frames]
     paths = _prepare_files(frames, geoms, scene_cache_dir(root, cfg.cache_dir))
 
-    c2w = torch.from_numpy(np.stack([f.c2w for f in frames]))  # [N, 4, 4] float64
-    transform = normalizing_transform(c2w[:, :3, 3], center=cfg.center_poses, scale=cfg.scale_poses)
-    c2w = transform.apply_c2w(c2w)
+    c2w_raw = torch.from_numpy(np.stack([f.c2w for f in frames]))  # [N, 4, 4] float64
+    transform = normalizing_transform(c2w_raw[:, :3, 3], center=cfg.center_poses, scale=cfg.scale_poses)
+    c2w = transform.apply_c2w(c2w_raw)
     cameras = Cameras(
         camtoworlds=c2w.float(),
         fx=torch.tensor([g.out.fx for g in geoms], dtype=torch.float32),
@@ -60,11 +60,12 @@ def load_scene(cfg: DataConfig) -> SceneData:
     )
     points = colors = None
     if parsed.points is not None and len(parsed.points):
-        points = transform.apply_points(
-            torch.from_numpy(np.asarray(parsed.points, np.float64))
-        ).float()  # [M, 3]
-        if parsed.point_colors is not None:
-            colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)).float() / 255.0  # [M, 3]
+        keep = usable_points(
+            np.asarray(parsed.points, np.float64), c2w_raw[:, :3, 3].numpy(), transform, root
+        )
+        points = transform.apply_points(torch.from_numpy(np.asarray(parsed.points, np.float64)[keep])).float()
+        if parsed.point_colors is not None:  # [M, 3] in [0, 1]
+            colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)[keep]).float() / 255.0
     return SceneData(
         name=root.name,
         root=root,
@@ -85,6 +86,46 @@ def load_scene(cfg: DataConfig) -> SceneData:
         test_is_clean=parsed.test_is_clean,
         frame_names=[f.name for f in frames],
     )
+
+
+FAR_POINT = 1e4
+"""A seed point farther from the cameras' centre than this many times the capture's size (the
+cameras' spread, or a thousandth of the points' median distance for a capture from one spot) is an
+outlier, not scenery."""
+MAX_COORD = 1e15
+"""Largest coordinate (in the normalised frame training sees) a seed point may have: float32
+covariances of Gaussians beyond it overflow."""
+
+
+def usable_points(
+    points: np.ndarray, centres: np.ndarray, transform: SceneTransform, root: Path
+) -> np.ndarray:
+    """Mask of seed points to keep: finite and not absurdly far (``points`` [M, 3], camera
+    ``centres`` [N, 3], both in the dataset's frame); warns with the counts dropped, DataError
+    when none is left."""
+    finite = np.isfinite(points).all(axis=1)
+    safe = np.where(finite[:, None], points, 0.0)  # [M, 3]
+    centre = centres.mean(axis=0)
+    dist = np.linalg.norm(safe - centre, axis=1)  # [M]
+    spread = float(np.linalg.norm(centres - centre, axis=1).max())
+    median = float(np.median(dist[finite])) if finite.any() else 0.0
+    normalised = transform.apply_points(torch.from_numpy(safe)).abs().amax(dim=1).numpy()  # [M]
+    keep = finite & (dist <= FAR_POINT * max(spread, 1e-3 * median)) & (normalised < MAX_COORD)
+    n_bad, n_far = int((~finite).sum()), int((finite & ~keep).sum())
+    if not keep.any():
+        raise DataError(
+            f"none of the {len(points)} seed points is usable ({n_bad} non-finite, {n_far} absurdly far "
+            "from the cameras)",
+            where=str(root),
+            fix="fix or remove the point cloud",
+        )
+    if n_bad or n_far:
+        warnings.warn(
+            f"dropped {n_bad} non-finite and {n_far} absurdly far seed point(s) of {len(points)} ({root})",
+            DataWarning,
+            stacklevel=2,
+        )
+    return keep
 
 
 # --------------------------------------------------------------------------------------

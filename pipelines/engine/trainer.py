@@ -394,12 +394,17 @@ class Trainer:
         self.bad_steps += 1
         if self.bad_steps >= MAX_BAD_STEPS:
             last = latest_checkpoint(self.run_dir)
+            fix = "lower the learning rates or check the data, then "
+            fix = (
+                f"the last good checkpoint is kept; {fix}resume with td-train --resume RUN"
+                if last
+                else f"no checkpoint was written before it; {fix}start a new run"
+            )
             raise TrainingDiverged(
                 f"training diverged: {self.bad_steps} consecutive steps (up to step {step + 1}) had a "
                 "non-finite loss or gradient",
                 where=str(last) if last else str(self.run_dir),
-                fix="the last good checkpoint is kept; lower the learning rates or check the data, then "
-                "resume with td-train --resume RUN",
+                fix=fix,
             )
 
     def save(self, step: int) -> Path:

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from components.data.ply import write_ply_points
 from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.export import main as export_main
@@ -78,6 +79,12 @@ CASES: dict[str, Case] = {
         (*TRAIN, "--data", "{scene}", "--pipeline.lambda-depth", "inf"),
         "--pipeline.lambda-depth must be a finite number",
     ),
+    **{  # every step was skipped, then "the last good checkpoint is kept" with none written
+        f"train: seed points all {kind}": Case(
+            "train", (*TRAIN, "--data", f"{{fx}}/points_{kind}"), "none of the 50 seed points is usable"
+        )
+        for kind in ("nan", "inf", "1e30")
+    },
     "train: negative --max-steps": Case(
         "train", (*TRAIN, "--data", "{scene}", "--max-steps", "-5"), "--max-steps must be >= 1"
     ),
@@ -382,6 +389,9 @@ def world(tmp_path_factory) -> dict[str, Path]:
         (fx / name).mkdir()
         (fx / name / "config.yml").write_text(body)
     (_copy_scene(scene, fx / "deep_json") / "transforms.json").write_text("[" * 100_000 + "]" * 100_000)
+    for kind, value in {"nan": np.nan, "inf": np.inf, "1e30": 1e30}.items():
+        ply = json.loads((scene / "transforms.json").read_text())["ply_file_path"]
+        write_ply_points(_copy_scene(scene, fx / f"points_{kind}") / ply, np.full((50, 3), value))
     (fx / "unsafe").mkdir()
     (fx / "unsafe" / "config.yml").write_text("method_name: !!python/object/apply:os.system ['echo pwned']\n")
 

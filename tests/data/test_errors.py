@@ -170,3 +170,35 @@ def test_split_names_unknown_image(tmp_path, make_cfg):
     )
     with pytest.raises(DataError, match="train split names 'images/nope.png'.*matches no image"):
         load_scene(make_cfg(tmp_path))
+
+
+def test_non_finite_and_absurd_seed_points_are_dropped_with_a_count(tmp_path, make_cfg):
+    """Issue 22: NaN / inf / 1e30 seed points were accepted and every training step was skipped."""
+    nan, inf = float("nan"), float("inf")
+    pts = np.array([[0.0, 0.0, 0.0], [nan, 0.0, 0.0], [0.1, inf, 0.2], [1e30, 0.0, 0.0], [0.3, -0.2, 0.1]])
+    _colmap_binary_with_points(tmp_path, pts)
+    with pytest.warns(DataWarning, match=r"dropped 2 non-finite and 1 absurdly far seed point\(s\) of 5"):
+        scene = load_scene(make_cfg(tmp_path, center_poses=False, scale_poses=False))
+    np.testing.assert_allclose(scene.points.numpy(), pts[[0, 4]], atol=1e-6)
+    assert scene.point_colors.shape == (2, 3)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("-inf"), 1e30])
+def test_only_unusable_seed_points_is_an_error(bad, tmp_path, make_cfg):
+    _colmap_binary_with_points(tmp_path, np.array([[bad, 0.0, 0.0], [0.0, bad, 1.0]]))
+    with pytest.raises(DataError, match="none of the 2 seed points is usable"):
+        load_scene(make_cfg(tmp_path))
+
+
+def _colmap_binary_with_points(root, pts: np.ndarray) -> None:
+    """A binary COLMAP model holding exactly ``pts`` (COLMAP's text reader cannot even parse nan)."""
+    import pycolmap
+
+    write_colmap(root, n=4, points=np.zeros_like(pts))
+    sparse = root / "sparse" / "0"
+    rec = pycolmap.Reconstruction(str(sparse))
+    for pid, xyz in zip(sorted(rec.points3D), pts, strict=True):
+        rec.points3D[pid].xyz = xyz
+    for f in sparse.glob("*.txt"):
+        f.unlink()
+    rec.write_binary(str(sparse))
