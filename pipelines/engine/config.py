@@ -96,6 +96,10 @@ class TrainerConfig:
     """Write a line of metrics to logs/metrics.jsonl every N steps."""
     steps_per_save: int = 1000
     """Write a checkpoint every N steps (and always at the end)."""
+    minutes_per_save: float = 5.0
+    """Also write one when this many minutes have passed since the last (the first after a fifth
+    of it), so a killed run loses at most that much work; 0: by steps only. Each checkpoint's cost
+    is logged in logs/checkpoints.jsonl."""
     eval_at_end: bool = True
     """Evaluate on the test split when training finishes and print the metrics."""
     early_stop: EarlyStopConfig = field(default_factory=EarlyStopConfig)
@@ -106,6 +110,8 @@ class TrainerConfig:
         _positive("--max-steps", self.max_steps)
         _positive("--steps-per-log", self.steps_per_log)
         _positive("--steps-per-save", self.steps_per_save)
+        if not 0 <= self.minutes_per_save <= 1e6:
+            raise ConfigError(f"--minutes-per-save must be in [0, 1e6], got {self.minutes_per_save}")
         _positive("--downscale", self.dataset.downscale)
         if self.dataset.test_every < 0:
             raise ConfigError(f"--test-every must be >= 0, got {self.dataset.test_every}")

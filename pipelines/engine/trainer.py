@@ -251,7 +251,8 @@ class Trainer:
         self._lock = self.viewer.lock if self.viewer is not None else contextlib.nullcontext()
         self._its = 0.0
         self._metrics: dict[str, float] = {}
-        self._start = time.perf_counter()
+        self._start = self._last_save = time.perf_counter()
+        self._save_interval = 60.0 * cfg.minutes_per_save / 5  # the first soon after the start
         done = self.start_step
         progress = self._progress_bar()
         with progress, log_path.open("a", encoding="utf-8") as log:
@@ -267,7 +268,7 @@ class Trainer:
                         self._record(done, log)
                     if ok and self._stop_early(done, log):
                         break
-                    if done == cfg.max_steps or (ok and done % cfg.steps_per_save == 0):
+                    if done == cfg.max_steps or (ok and (done % cfg.steps_per_save == 0 or self._save_due())):
                         self.save(done)
             except KeyboardInterrupt:
                 progress.stop()
@@ -407,7 +408,13 @@ class Trainer:
                 fix=fix,
             )
 
+    def _save_due(self) -> bool:
+        """Whether the time budget since the last checkpoint is spent (``--minutes-per-save``)."""
+        interval = self._save_interval
+        return interval > 0 and time.perf_counter() - self._last_save >= interval
+
     def save(self, step: int) -> Path:
+        t0 = time.perf_counter()
         payload = {
             "step": step,
             "method": self.config.method_name,
@@ -415,7 +422,14 @@ class Trainer:
             "optimizers": self.optimizers.state_dict(),
             "torch_rng": torch.get_rng_state(),
         }
-        return save_checkpoint(checkpoint_path(self.run_dir, step), payload)
+        path = save_checkpoint(checkpoint_path(self.run_dir, step), payload)
+        seconds = time.perf_counter() - t0
+        self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save
+        record = {"step": step, "seconds": round(seconds, 4), "bytes": path.stat().st_size}
+        (self.run_dir / "logs").mkdir(exist_ok=True)
+        with (self.run_dir / "logs" / "checkpoints.jsonl").open("a", encoding="utf-8") as log:
+            log.write(json.dumps(record) + "\n")
+        return path
 
     def _print_summary(self, final: dict[str, Any]) -> None:
         shown = {k: v for k, v in final.items() if isinstance(v, (int, float))}

@@ -104,3 +104,28 @@ def test_a_start_that_fails_leaves_no_run_folder(scene, tmp_path, monkeypatch):
     with pytest.raises(OSError, match="No space left"):
         _trainer(_cfg(scene, tmp_path / "kept", 2)).setup()
     assert (tmp_path / "kept").is_dir() and not any((tmp_path / "kept").iterdir())  # existed: stays
+
+
+def test_checkpoints_on_a_time_budget(scene, tmp_path, monkeypatch):
+    """Issue 22: a run killed before its first step-count checkpoint had nothing to resume. With
+    ``--minutes-per-save`` a checkpoint also comes when the time since the last one is spent."""
+    import json
+
+    import pipelines.engine.trainer as trainer_module
+
+    clock = iter(range(0, 10_000, 7))  # every reading of the clock is 7 s later
+    monkeypatch.setattr(trainer_module.time, "perf_counter", lambda: float(next(clock)))
+    cfg = _cfg(scene, tmp_path, 6, "--steps-per-save", "1000", "--minutes-per-save", "0.5")
+    run = _trainer(cfg).train().run_dir
+    saved = [json.loads(line) for line in (run / "logs" / "checkpoints.jsonl").read_text().splitlines()]
+    steps = [r["step"] for r in saved]
+    assert steps[-1] == 6 and len(steps) >= 3 and steps != [2, 4, 6], steps  # the first after 6 s, then every 30 s, and the end
+    assert all(r["bytes"] > 0 and r["seconds"] >= 0 for r in saved)
+    assert steps == sorted(set(steps))
+
+    monkeypatch.undo()
+    off = _trainer(_cfg(scene, tmp_path / "off", 6, "--steps-per-save", "1000", "--minutes-per-save", "0"))
+    run = off.train().run_dir
+    assert [json.loads(x)["step"] for x in (run / "logs" / "checkpoints.jsonl").read_text().splitlines()] == [
+        6
+    ]
