@@ -119,7 +119,9 @@ def test_checkpoints_on_a_time_budget(scene, tmp_path, monkeypatch):
     run = _trainer(cfg).train().run_dir
     saved = [json.loads(line) for line in (run / "logs" / "checkpoints.jsonl").read_text().splitlines()]
     steps = [r["step"] for r in saved]
-    assert steps[-1] == 6 and len(steps) >= 3 and steps != [2, 4, 6], steps  # the first after 6 s, then every 30 s, and the end
+    assert steps[-1] == 6 and len(steps) >= 3 and steps != [2, 4, 6], (
+        steps
+    )  # the first after 6 s, then every 30 s, and the end
     assert all(r["bytes"] > 0 and r["seconds"] >= 0 for r in saved)
     assert steps == sorted(set(steps))
 

@@ -45,8 +45,6 @@ class ColmapParser(DataParser):
 
     @classmethod
     def parse(cls, root: Path, cfg: DataConfig) -> ParsedScene:
-        import pycolmap  # local: heavy import, only needed for this format
-
         sparse = find_sparse_dir(root)
         if sparse is None:
             raise DataError(
@@ -61,15 +59,7 @@ class ColmapParser(DataParser):
                 where=str(images_dir),
                 fix="put the input photos in images/",
             )
-        check_binary_model(sparse)  # pycolmap trusts the counts: a bad one allocates without bound
-        try:
-            rec = pycolmap.Reconstruction(str(sparse))
-        except Exception as exc:  # noqa: BLE001 - pycolmap raises assorted types for bad files
-            raise DataError(
-                f"cannot read the COLMAP model ({type(exc).__name__}: {str(exc)[:200]})",
-                where=str(sparse),
-                fix="re-export the model (colmap model_converter) or check the files are complete",
-            ) from None
+        rec = _read_model(sparse)
 
         cams = {cid: _camera(cam, sparse) for cid, cam in rec.cameras.items()}
         frames: list[Frame] = []
@@ -105,6 +95,20 @@ class ColmapParser(DataParser):
             train_names=_read_list(root / "train_list.txt"),
             test_names=_read_list(root / "test_list.txt"),
         )
+
+
+def _read_model(sparse: Path):  # noqa: ANN202 - pycolmap.Reconstruction (imported lazily)
+    import pycolmap  # local: heavy import, only needed for this format
+
+    check_binary_model(sparse)  # pycolmap trusts the counts: a bad one allocates without bound
+    try:
+        return pycolmap.Reconstruction(str(sparse))
+    except Exception as exc:  # noqa: BLE001 - pycolmap raises assorted types for bad files
+        raise DataError(
+            f"cannot read the COLMAP model ({type(exc).__name__}: {str(exc)[:200]})",
+            where=str(sparse),
+            fix="re-export the model (colmap model_converter) or check the files are complete",
+        ) from None
 
 
 def _camera(cam, sparse: Path) -> dict:
