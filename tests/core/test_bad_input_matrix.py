@@ -295,26 +295,19 @@ CASES: dict[str, Case] = {
         "--output must end in .png",
     ),
     # ------------------------------------------- --overwrite replaces only the tool's own output
-    "export: --overwrite onto the run folder": Case(
-        "export",
-        ("--load-config", "{config}", "--output-dir", "{run}", "--overwrite"),
-        "--overwrite refused: td-export did not write this folder",
-    ),
-    "export: --overwrite onto the folder that holds the run": Case(
-        "export",
-        ("--load-config", "{config}", "--output-dir", "{outputs}", "--overwrite"),
-        "--overwrite refused: td-export did not write this folder",
-    ),
-    "export: --overwrite onto a user's folder": Case(
-        "export",
-        ("--load-config", "{config}", "--output-dir", "{fx}/notes", "--overwrite"),
-        "--overwrite refused: td-export did not write this folder",
-    ),
-    "export: --overwrite onto a dataset written by td-synth": Case(
-        "export",
-        ("--load-config", "{config}", "--output-dir", "{scene}", "--overwrite"),
-        "--overwrite refused: td-export did not write this folder",
-    ),
+    **{  # the run, the folder that holds it, a user's folder, a dataset td-synth wrote
+        f"export: --overwrite onto {what}": Case(
+            "export",
+            ("--load-config", "{config}", "--output-dir", target, "--overwrite"),
+            "--overwrite refused: td-export did not write this folder",
+        )
+        for what, target in {
+            "the run folder": "{run}",
+            "the folder that holds the run": "{outputs}",
+            "a user's folder": "{fx}/notes",
+            "a dataset written by td-synth": "{scene}",
+        }.items()
+    },
     "export: --overwrite onto its own export with a user's file added": Case(
         "export",
         ("--load-config", "{config}", "--output-dir", "{fx}/export_plus", "--overwrite"),
