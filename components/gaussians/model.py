@@ -243,12 +243,23 @@ class GaussianModel(nn.Module):
     def _load_from_state_dict(
         self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any
     ) -> None:
-        # checkpoints saved after densification hold a different N: resize before copying
-        resized = {}
-        for name in self.param_names:
-            key = f"{prefix}params.{name}"
-            if key in state_dict and state_dict[key].shape != self.params[name].shape:
-                resized[name] = torch.empty_like(state_dict[key], device=self.params[name].device)
+        # checkpoints saved after densification hold a different N: resize before copying, once the
+        # stored shapes are known to agree with each other and with this model's per-Gaussian shapes
+        stored = {
+            n: state_dict[f"{prefix}params.{n}"]
+            for n in self.param_names
+            if f"{prefix}params.{n}" in state_dict
+        }
+        counts = {v.shape[0] if v.dim() else None for v in stored.values()}
+        wrong = [n for n, v in stored.items() if v.dim() == 0 or v.shape[1:] != self.params[n].shape[1:]]
+        if wrong or len(counts) > 1:
+            shapes = ", ".join(f"{n} {tuple(v.shape)}" for n, v in stored.items())
+            raise RuntimeError(f"stored Gaussian parameters do not fit this model: {shapes}")
+        resized = {
+            n: torch.empty_like(v, device=self.params[n].device)
+            for n, v in stored.items()
+            if v.shape != self.params[n].shape
+        }
         if resized:
             self.replace_params(resized)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

@@ -64,4 +64,63 @@ def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dic
         ) from None
     if not isinstance(payload, dict) or "pipeline" not in payload or "step" not in payload:
         raise UserError("file is not a tridehaze checkpoint (missing 'pipeline'/'step')", where=str(path))
+    problem = _schema_problem(payload)
+    if problem:
+        raise UserError(
+            f"checkpoint has wrong contents ({problem})",
+            where=str(path),
+            fix="use an earlier checkpoint from the same folder or retrain",
+        )
     return payload
+
+
+def _schema_problem(payload: dict[str, Any]) -> str | None:
+    """What is wrong with a loaded checkpoint's layout (None: nothing): checked before any of it is
+    used, so a tampered file gives one line instead of a traceback deep in a model."""
+    step = payload["step"]
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        return f"step must be a non-negative integer, got {type(step).__name__}"
+    state = payload["pipeline"]
+    if not isinstance(state, dict) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+    ):
+        return "'pipeline' must map names to tensors"
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        return f"non-finite values in {', '.join(bad[:3])}"
+    if "optimizers" in payload and not isinstance(payload["optimizers"], dict):
+        return "'optimizers' must be a mapping"
+    rng = payload.get("torch_rng")
+    if rng is not None and not (
+        isinstance(rng, torch.Tensor) and rng.dtype == torch.uint8 and rng.dim() == 1
+    ):
+        return "'torch_rng' must be a 1-D uint8 tensor"
+    return None
+
+
+def load_pipeline_state(pipeline: torch.nn.Module, payload: dict[str, Any], path: Path) -> None:
+    """``pipeline.load_state_dict`` with a one-line error when the weights do not fit it."""
+    try:
+        pipeline.load_state_dict(payload["pipeline"])
+    except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+        first = str(exc).strip().splitlines()[0][:200]
+        raise UserError(f"checkpoint does not match the run's config ({first})", where=str(path)) from None
+
+
+def load_training_state(optimizers: Any, payload: dict[str, Any], path: Path) -> None:
+    """The optimiser state and RNG of a resumed run, with a one-line error when they do not fit."""
+    if "optimizers" not in payload:
+        raise UserError(
+            "checkpoint has no optimiser state, so training cannot resume from it",
+            where=str(path),
+            fix="it can still be rendered and evaluated; start a new run to train",
+        )
+    try:
+        optimizers.load_state_dict(payload["optimizers"])
+        if "torch_rng" in payload:
+            torch.set_rng_state(payload["torch_rng"].cpu())
+    except (RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+        raise UserError(
+            f"checkpoint's optimiser or RNG state does not fit this run ({first})", where=str(path)
+        ) from None

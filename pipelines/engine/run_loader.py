@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 
 from components.data.loader import load_scene
-from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint, load_pipeline_state
 from pipelines.engine.config import TrainerConfig
 from pipelines.engine.contract import Pipeline
 from pipelines.engine.datamanager import DataManager
@@ -48,10 +48,6 @@ def load_run(
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, torch.device(device), seed=cfg.seed)
     pipeline = cfg.pipeline.setup(dm, seed=cfg.seed, max_steps=cfg.max_steps, training=False)
-    try:
-        pipeline.load_state_dict(payload["pipeline"])
-    except (RuntimeError, KeyError) as exc:
-        first = str(exc).strip().splitlines()[0][:200]
-        raise UserError(f"checkpoint does not match the run's config ({first})", where=str(ckpt)) from None
+    load_pipeline_state(pipeline, payload, ckpt)
     pipeline.eval()
     return LoadedRun(cfg, run_dir, dm, pipeline, int(payload["step"]))

@@ -23,7 +23,14 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from components.data.loader import load_scene
-from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint, load_checkpoint, save_checkpoint
+from pipelines.engine.checkpoint import (
+    checkpoint_path,
+    latest_checkpoint,
+    load_checkpoint,
+    load_pipeline_state,
+    load_training_state,
+    save_checkpoint,
+)
 from pipelines.engine.config import TrainerConfig
 from pipelines.engine.contract import Decision, Pipeline, StepResult
 from pipelines.engine.datamanager import DataManager
@@ -181,7 +188,7 @@ class Trainer:
             EarlyStopper(cfg.early_stop, self.datamanager, cfg.max_steps) if cfg.early_stop.enabled else None
         )
         if self.resume is not None:
-            self.optimizers.load_state_dict(self._payload["optimizers"])
+            load_training_state(self.optimizers, self._payload, self._payload_path)  # optimiser + RNG
             del self._payload
         else:
             self.run_dir, self._made_run_dir = make_run_dir(cfg, scene.name)
@@ -215,17 +222,9 @@ class Trainer:
                 fix="start a new run instead",
             )
         payload = load_checkpoint(ckpt, map_location=self.device)
-        try:
-            self.pipeline.load_state_dict(payload["pipeline"])
-        except (RuntimeError, KeyError) as exc:
-            first = str(exc).strip().splitlines()[0][:200]
-            raise UserError(
-                f"checkpoint does not match the run's config ({first})", where=str(ckpt)
-            ) from None
-        self.start_step = int(payload["step"])
-        if "torch_rng" in payload:
-            torch.set_rng_state(payload["torch_rng"].cpu())
-        self._payload = payload
+        load_pipeline_state(self.pipeline, payload, ckpt)
+        self.start_step = payload["step"]
+        self._payload, self._payload_path = payload, ckpt
 
     # ------------------------------------------------------------------------------- loop
     def train(self) -> TrainResult:
