@@ -60,10 +60,10 @@ def load_scene(cfg: DataConfig) -> SceneData:
     )
     points = colors = None
     if parsed.points is not None and len(parsed.points):
-        keep = usable_points(
-            np.asarray(parsed.points, np.float64), c2w_raw[:, :3, 3].numpy(), transform, root
-        )
-        points = transform.apply_points(torch.from_numpy(np.asarray(parsed.points, np.float64)[keep])).float()
+        raw = np.asarray(parsed.points, np.float64)  # [M, 3] in the dataset's frame
+        normalised = transform.apply_points(torch.from_numpy(raw))  # [M, 3] the frame training sees
+        keep = usable_points(raw, normalised.numpy(), c2w_raw[:, :3, 3].numpy(), root)
+        points = normalised[torch.from_numpy(keep)].float()
         if parsed.point_colors is not None:  # [M, 3] in [0, 1]
             colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)[keep]).float() / 255.0
     return SceneData(
@@ -97,20 +97,18 @@ MAX_COORD = 1e15
 covariances of Gaussians beyond it overflow."""
 
 
-def usable_points(
-    points: np.ndarray, centres: np.ndarray, transform: SceneTransform, root: Path
-) -> np.ndarray:
-    """Mask of seed points to keep: finite and not absurdly far (``points`` [M, 3], camera
-    ``centres`` [N, 3], both in the dataset's frame); warns with the counts dropped, DataError
-    when none is left."""
+def usable_points(points: np.ndarray, normalised: np.ndarray, centres: np.ndarray, root: Path) -> np.ndarray:
+    """Mask of seed points to keep: finite and not absurdly far (``points`` [M, 3] and camera
+    ``centres`` [N, 3] in the dataset's frame, ``normalised`` [M, 3] the same points as training
+    sees them); warns with the counts dropped, DataError when none is left."""
     finite = np.isfinite(points).all(axis=1)
     safe = np.where(finite[:, None], points, 0.0)  # [M, 3]
     centre = centres.mean(axis=0)
     dist = np.linalg.norm(safe - centre, axis=1)  # [M]
     spread = float(np.linalg.norm(centres - centre, axis=1).max())
     median = float(np.median(dist[finite])) if finite.any() else 0.0
-    normalised = transform.apply_points(torch.from_numpy(safe)).abs().amax(dim=1).numpy()  # [M]
-    keep = finite & (dist <= FAR_POINT * max(spread, 1e-3 * median)) & (normalised < MAX_COORD)
+    inside = np.abs(normalised).max(axis=1) < MAX_COORD  # [M] (False on NaN rows, already out)
+    keep = finite & (dist <= FAR_POINT * max(spread, 1e-3 * median)) & inside
     n_bad, n_far = int((~finite).sum()), int((finite & ~keep).sum())
     if not keep.any():
         raise DataError(

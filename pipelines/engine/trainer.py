@@ -409,8 +409,7 @@ class Trainer:
 
     def _save_due(self) -> bool:
         """Whether the time budget since the last checkpoint is spent (``--minutes-per-save``)."""
-        interval = self._save_interval
-        return interval > 0 and time.perf_counter() - self._last_save >= interval
+        return self._save_interval > 0 and time.perf_counter() - self._last_save >= self._save_interval
 
     def save(self, step: int) -> Path:
         t0 = time.perf_counter()
@@ -422,9 +421,8 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
         }
         path = save_checkpoint(checkpoint_path(self.run_dir, step), payload)
-        seconds = time.perf_counter() - t0
         self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save
-        record = {"step": step, "seconds": round(seconds, 4), "bytes": path.stat().st_size}
+        record = {"step": step, "seconds": round(self._last_save - t0, 4), "bytes": path.stat().st_size}
         (self.run_dir / "logs").mkdir(exist_ok=True)
         with (self.run_dir / "logs" / "checkpoints.jsonl").open("a", encoding="utf-8") as log:
             log.write(json.dumps(record) + "\n")

@@ -37,7 +37,7 @@ class Job:
     variant: Variant
 
     def __post_init__(self) -> None:
-        taken = [a.split("=")[0] for a in self.variant.overrides if a.split("=")[0] in RUNNER_FLAGS]
+        taken = [flag for flag in (a.split("=")[0] for a in self.variant.overrides) if flag in RUNNER_FLAGS]
         if taken:
             raise ValueError(
                 f"variant {self.variant.name!r}: {', '.join(taken)} in its overrides would be overruled "

@@ -40,7 +40,7 @@ def check_binary_model(sparse: Path) -> None:
         path = sparse / name
         if not path.is_file():
             continue
-        data = memoryview(path.read_bytes())
+        data = path.read_bytes()
         try:
             end, what = walk(data)
         except (_Truncated, struct.error) as exc:
@@ -58,19 +58,19 @@ def check_binary_model(sparse: Path) -> None:
             )
 
 
-def _count(data: memoryview, record_min: int, kind: str) -> int:
+def _count(data: bytes, record_min: int, kind: str) -> int:
     n = _U64.unpack_from(data, 0)[0]
     if n * record_min > len(data) - 8:  # cannot fit even with every record at its smallest
         raise _Truncated(f"it announces {n} {kind}, which cannot fit")
     return n
 
 
-def _need(data: memoryview, pos: int, size: int, i: int, kind: str) -> None:
+def _need(data: bytes, pos: int, size: int, i: int, kind: str) -> None:
     if size > len(data) - pos:
         raise _Truncated(f"{kind} {i} runs past the end of the file")
 
 
-def _cameras(data: memoryview) -> tuple[int, str]:
+def _cameras(data: bytes) -> tuple[int, str]:
     n = _count(data, _CAMERA.size + 8 * 3, "cameras")
     pos = 8
     for i in range(n):
@@ -84,13 +84,12 @@ def _cameras(data: memoryview) -> tuple[int, str]:
     return pos, f"{n} camera(s)"
 
 
-def _images(data: memoryview) -> tuple[int, str]:
+def _images(data: bytes) -> tuple[int, str]:
     n = _count(data, _IMAGE_HEAD + 1 + 8, "images")
-    raw = data.obj if isinstance(data.obj, bytes) else bytes(data)
     pos = 8
     for i in range(n):
         _need(data, pos, _IMAGE_HEAD + 1, i, "image")
-        nul = raw.find(b"\0", pos + _IMAGE_HEAD)
+        nul = data.find(b"\0", pos + _IMAGE_HEAD)
         if nul < 0:
             raise _Truncated(f"the name of image {i} is not terminated")
         pos = nul + 1
@@ -103,7 +102,7 @@ def _images(data: memoryview) -> tuple[int, str]:
     return pos, f"{n} image(s)"
 
 
-def _points(data: memoryview) -> tuple[int, str]:
+def _points(data: bytes) -> tuple[int, str]:
     n = _count(data, _POINT_HEAD.size, "points")
     pos = 8
     for i in range(n):
