@@ -6,6 +6,7 @@ import os
 import pickle
 import tempfile
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,33 @@ from components.data.images import default_file_mode
 from tridehaze_plugin.errors import UserError
 
 CHECKPOINT_GLOB = "step-*.ckpt"
+ELAPSED_KEYS = ("train_seconds", "cpu_seconds")
+
+
+@dataclass(frozen=True)
+class Elapsed:
+    """What training a run has cost so far, carried in its checkpoints so that a run resumed after
+    an interruption reports the whole run's cost (work redone after the last checkpoint is not
+    counted twice: it is lost with the interrupted process)."""
+
+    train_seconds: float = 0.0
+    """Wall time inside the training loop."""
+    cpu_seconds: float = 0.0
+    """CPU time of the training processes, setup (data, probe) included."""
+
+    def plus(self, train_seconds: float, cpu_seconds: float) -> Elapsed:
+        return Elapsed(self.train_seconds + train_seconds, self.cpu_seconds + cpu_seconds)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"train_seconds": self.train_seconds, "cpu_seconds": self.cpu_seconds}
+
+    def to_payload(self) -> dict[str, float]:
+        return {f"elapsed_{k}": v for k, v in self.to_dict().items()}
+
+    @classmethod
+    def from_payload(cls, payload: dict[str, Any]) -> Elapsed:
+        """Zero for checkpoints written before the cost was stored."""
+        return cls(*(float(payload.get(f"elapsed_{k}", 0.0)) for k in ELAPSED_KEYS))
 
 
 def checkpoint_path(run_dir: Path, step: int) -> Path:
@@ -90,6 +118,10 @@ def _schema_problem(payload: dict[str, Any]) -> str | None:
         return f"non-finite values in {', '.join(bad[:3])}"
     if "optimizers" in payload and not isinstance(payload["optimizers"], dict):
         return "'optimizers' must be a mapping"
+    for key in (f"elapsed_{k}" for k in ELAPSED_KEYS):
+        value = payload.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1e9:
+            return f"'{key}' must be a non-negative number of seconds"
     rng = payload.get("torch_rng")
     if rng is not None and not (
         isinstance(rng, torch.Tensor) and rng.dtype == torch.uint8 and rng.dim() == 1

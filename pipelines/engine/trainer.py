@@ -24,6 +24,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
 from components.data.loader import load_scene
 from pipelines.engine.checkpoint import (
+    Elapsed,
     checkpoint_path,
     latest_checkpoint,
     load_checkpoint,
@@ -136,6 +137,8 @@ class Trainer:
         self.console = console or Console(soft_wrap=True)
         self.resume = Path(resume) if resume is not None else None
         self.start_step = 0
+        self.spent_before = Elapsed()
+        """Training time spent on this run by earlier processes (read from the resumed checkpoint)."""
         self.bad_steps = 0
         self.skipped_steps = 0
         self.live_view = live_view
@@ -224,6 +227,7 @@ class Trainer:
         payload = load_checkpoint(ckpt, map_location=self.device)
         load_pipeline_state(self.pipeline, payload, ckpt)
         self.start_step = payload["step"]
+        self.spent_before = Elapsed.from_payload(payload)
         self._payload, self._payload_path = payload, ckpt
 
     # ------------------------------------------------------------------------------- loop
@@ -320,7 +324,7 @@ class Trainer:
             return
         row = {
             "step": done,
-            "time": time.perf_counter() - self._start,
+            "time": self._elapsed().train_seconds,
             "its": self._its,
             **self._metrics,
             **stats,
@@ -351,8 +355,9 @@ class Trainer:
     def _finish(self, done: int) -> TrainResult:
         """Final metrics (and the test split's evaluation) into eval/metrics.json and the console."""
         cfg = self.config
-        seconds = time.perf_counter() - self._start
-        final: dict[str, Any] = {"train_seconds": seconds, "steps": done, **self.pipeline.stats()}
+        spent = self._elapsed()
+        seconds = spent.train_seconds
+        final: dict[str, Any] = {**spent.to_dict(), "steps": done, **self.pipeline.stats()}
         if done < cfg.max_steps:
             final["stopped_early_at"] = done
         if self.skipped_steps:
@@ -407,6 +412,11 @@ class Trainer:
                 fix=fix,
             )
 
+    def _elapsed(self) -> Elapsed:
+        """Time spent on the run so far, summed over the processes that trained it (a resumed run
+        reports the whole run's cost, not the last leg's)."""
+        return self.spent_before.plus(time.perf_counter() - self._start, time.process_time())
+
     def _save_due(self) -> bool:
         """Whether the time budget since the last checkpoint is spent (``--minutes-per-save``)."""
         return self._save_interval > 0 and time.perf_counter() - self._last_save >= self._save_interval
@@ -419,6 +429,7 @@ class Trainer:
             "pipeline": self.pipeline.state_dict(),
             "optimizers": self.optimizers.state_dict(),
             "torch_rng": torch.get_rng_state(),
+            **self._elapsed().to_payload(),
         }
         path = save_checkpoint(checkpoint_path(self.run_dir, step), payload)
         self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save

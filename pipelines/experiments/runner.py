@@ -136,6 +136,7 @@ class AblationRunner:
         with log_path.open("a", encoding="utf-8") as log:
             code = self._call(self._train_command(job, rd), log)
             train_s = time.perf_counter() - t0
+            train_cpu = self.cpu_seconds[threading.get_ident()]
             if code != 0 or self._stopping:
                 return self._failed(job, f"td-train exited with {code}", log_path)
             o = self.opts
@@ -146,7 +147,9 @@ class AblationRunner:
             )  # fmt: skip
             if code != 0:
                 return self._failed(job, f"td-eval exited with {code}", log_path)
-        result = self._result(job, rd, json.loads(out_json.read_text()), train_s, time.perf_counter() - t0)
+        result = self._result(
+            job, rd, json.loads(out_json.read_text()), train_s, time.perf_counter() - t0, train_cpu
+        )
         write_text_atomic(self.result_path(job), json.dumps(result, indent=2) + "\n")
         return result
 
@@ -167,9 +170,14 @@ class AblationRunner:
             "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *o.extra,
         ]  # fmt: skip
 
-    def _result(self, job: Job, rd: Path, report: dict, train_s: float, wall_s: float) -> dict[str, Any]:
-        """The result record of a finished run (the table's row): its numbers and how it was made."""
+    def _result(
+        self, job: Job, rd: Path, report: dict, train_s: float, wall_s: float, train_cpu: float
+    ) -> dict[str, Any]:
+        """The result record of a finished run (the table's row): its numbers and how it was made.
+        Training time and CPU come from the run (summed over resumes) where it records them, else
+        from this call's child process."""
         train_info = _read_json(rd / "eval" / "metrics.json")
+        eval_cpu = self.cpu_seconds[threading.get_ident()] - train_cpu
         return {
             "signature": self.signature(job),
             "status": "ok",
@@ -182,7 +190,7 @@ class AblationRunner:
             "gaussians": train_info.get("gaussians"),
             "steps": self.steps(job),
             "peak_rss_mb": self.peak_rss_mb.get(threading.get_ident()),
-            "cpu_seconds": self.cpu_seconds.get(threading.get_ident()),
+            "cpu_seconds": train_info.get("cpu_seconds", train_cpu) + eval_cpu,
             "restoration": report.get("restoration"),
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),

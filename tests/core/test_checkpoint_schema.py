@@ -82,6 +82,11 @@ CASES = {
         "'torch_rng' must be a 1-D uint8 tensor",
         "torch_rng",
     ),
+    "negative elapsed time": (
+        _set("elapsed_cpu_seconds", -1.0),
+        "'elapsed_cpu_seconds' must be a non-negative number of seconds",
+        "elapsed_cpu_seconds",
+    ),
     "truncated RNG state": (
         _set("torch_rng", torch.zeros(7, dtype=torch.uint8)),
         "checkpoint's optimiser or RNG state does not fit this run",

@@ -3,13 +3,14 @@ repeated ones stop the run with the last good checkpoint intact."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 import torch
 from rich.console import Console
 
-from pipelines.engine.checkpoint import latest_checkpoint, load_checkpoint
+from pipelines.engine.checkpoint import Elapsed, latest_checkpoint, load_checkpoint
 from pipelines.engine.contract import StepResult
 from pipelines.engine.trainer import MAX_BAD_STEPS, Trainer, TrainingDiverged
 from tests.tiny_scenes import tiny_hazy_scene
@@ -57,7 +58,8 @@ def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path):
     part.pipeline.train_loss = stop_at_5
     with pytest.raises(KeyboardInterrupt):
         part.train()
-    assert load_checkpoint(latest_checkpoint(part.run_dir))["step"] == 5  # written on Ctrl-C
+    stopped = load_checkpoint(latest_checkpoint(part.run_dir))
+    assert stopped["step"] == 5  # written on Ctrl-C
 
     resume, args = split_resume(["--resume", str(part.run_dir)])
     again = _trainer(parse_args(args), resume=resume)
@@ -68,6 +70,20 @@ def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path):
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0, msg=k)
     assert int(again.pipeline.stage) == 2
+    _cost_spans_the_resume(part.run_dir, Elapsed.from_payload(stopped), again)
+
+
+def _cost_spans_the_resume(run_dir: Path, before: Elapsed, resumed: Trainer) -> None:
+    """A resumed run reports the whole run's time and CPU, not only its last leg's."""
+    assert before.train_seconds > 0 and before.cpu_seconds > 0
+    assert resumed.spent_before == before
+    final = json.loads((run_dir / "eval" / "metrics.json").read_text())
+    assert final["train_seconds"] > before.train_seconds and final["cpu_seconds"] > before.cpu_seconds
+    times = [
+        json.loads(line)["time"] for line in (run_dir / "logs" / "metrics.jsonl").read_text().splitlines()
+    ]
+    assert times[-1] == pytest.approx(final["train_seconds"], abs=0.5)
+    assert times[-1] > before.train_seconds  # the log's clock does not restart at the resume
 
 
 def test_nonfinite_steps_are_skipped_and_counted(scene, tmp_path):
