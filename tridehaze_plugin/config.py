@@ -35,6 +35,46 @@ class RegistryChoice:
     """Extra accepted values that are not registry names (e.g. ``"auto"``)."""
 
 
+@dataclass(frozen=True)
+class Range:
+    """Marks a numeric field's allowed values, e.g. ``Annotated[int, Range(1, 3)]``; checked by
+    :func:`check_numbers` right after parsing, so a value that cannot work fails as one line naming
+    the flag instead of deep inside a kernel (``--pipeline.rasterizer.tile-size 0`` divided by zero)."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    """True: ``lo`` itself is not allowed."""
+    odd: bool = False
+    """Only odd integers (window sizes)."""
+
+    def problem(self, value: float) -> str | None:
+        """What is wrong with ``value`` (None: it is allowed)."""
+        low = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
+        if low or (self.hi is not None and value > self.hi) or (self.odd and value % 2 != 1):
+            return f"must be {self.describe()}, got {value}"
+        return None
+
+    def describe(self) -> str:
+        parts = []
+        if self.lo is not None:
+            parts.append(f"{'>' if self.lo_open else '>='} {_number(self.lo)}")
+        if self.hi is not None:
+            parts.append(f"<= {_number(self.hi)}")
+        text = " and ".join(parts)
+        return f"an odd integer {text}" if self.odd else text
+
+
+def _number(v: float) -> str:
+    return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else f"{v:g}"
+
+
+NonNegative = Range(0.0)
+Positive = Range(0.0, lo_open=True)
+SEED_RANGE = Range(0, 2**32 - 1)
+"""Seeds feed numpy's generator too, which takes 32 bits."""
+
+
 @dataclass
 class ComponentConfig:
     """Base for every component config: a dataclass that knows how to build its component."""
@@ -65,18 +105,25 @@ def validate(cfg: Any, registry: Registry | None = None, _prefix: str = "") -> N
             validate(value, registry, f"{_prefix}{f.name}.")
 
 
-def check_finite(cfg: Any, _prefix: str = "") -> None:
-    """Reject nan / inf in every float option (recursively, tuples too): parsed from the command line
-    they pass type checks, then hang or poison the work (``--fps inf`` spun forever)."""
+def check_numbers(cfg: Any, _prefix: str = "") -> None:
+    """Reject nan / inf in every float option and values outside a field's declared :class:`Range`
+    (recursively, tuples too): parsed from the command line they pass type checks, then hang or
+    poison the work (``--fps inf`` spun forever)."""
+    hints = _hints(type(cfg))
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
         flag = f"--{_prefix}{f.name}".replace("_", "-")
         items = value if isinstance(value, (tuple, list)) else (value,)
+        ranges = [m for m in getattr(hints.get(f.name), "__metadata__", ()) if isinstance(m, Range)]
         for v in items:
             if isinstance(v, float) and not math.isfinite(v):
                 raise ConfigError(f"{flag} must be a finite number, got {v}", fix="pass a finite value")
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                for r in ranges:
+                    if (problem := r.problem(v)) is not None:
+                        raise ConfigError(f"{flag} {problem}")
         if dataclasses.is_dataclass(value):
-            check_finite(value, f"{_prefix}{f.name}.")
+            check_numbers(value, f"{_prefix}{f.name}.")
 
 
 def _hints(cls: type) -> dict[str, Any]:
@@ -229,15 +276,31 @@ class _AliasFound(Exception):
     pass
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
 class _NoAliasLoader(yaml.SafeLoader):
     """``safe_load`` that refuses aliases (``*name``): td-* config files never need them, and a
-    few nested ones (an alias bomb) expand to gigabytes."""
+    few nested ones (an alias bomb) expand to gigabytes. It also refuses a key given twice in one
+    mapping, which plain YAML loading resolves silently to the last value."""
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()
             raise _AliasFound(f"*{event.anchor} at line {event.start_mark.line + 1}")
         return super().compose_node(parent, index)
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if not isinstance(key, (str, int, float, bool)):
+                continue  # unhashable keys fail in the base class with their own message
+            if key in seen:
+                raise _DuplicateKey(f"{shown(key)} at line {key_node.start_mark.line + 1}")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
 
 
 def read_yaml_mapping(path: Path) -> dict[str, Any]:
@@ -256,6 +319,10 @@ def read_yaml_mapping(path: Path) -> dict[str, Any]:
             f"config file uses a YAML alias ({exc}); td-* config files never do",
             where=str(path),
             fix="write the value out in full",
+        ) from None
+    except _DuplicateKey as exc:
+        raise ConfigError(
+            f"config file sets a key twice ({exc})", where=str(path), fix="keep one value for it"
         ) from None
     except RecursionError:
         raise ConfigError("config file is nested too deeply to be a td-* config", where=str(path)) from None

@@ -55,3 +55,8 @@ class ConfigError(UserError):
 
 class PluginError(UserError):
     """A plugin or registered component that cannot be found or loaded."""
+
+
+class InputWarning(UserWarning):
+    """Something in the user's input was odd but work went on; the td-* tools print it as one
+    ``warning: ...`` line (no source line from the module that noticed it)."""

@@ -14,10 +14,14 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
-
 from components.data.geometry import Geometry, apply_geometry
-from components.data.images import decode_raw, read_image, write_array_atomic, write_image_atomic
+from components.data.images import (
+    check_map_fits,
+    read_image,
+    read_map,
+    write_array_atomic,
+    write_image_atomic,
+)
 from tridehaze_plugin.errors import DataError
 
 CACHE_ENV_VAR = "TRIDEHAZE_CACHE"
@@ -80,27 +84,10 @@ def prepare_map(src: Path, geom: Geometry, name: str, out_dir: Path) -> Path:
     out_suffix = suffix if suffix in (".npy", ".png", ".tif", ".tiff") else ".png"
     dst = cached_path(src, geom, "map", name, out_dir, out_suffix)
     if not dst.is_file():
-        arr = _read_map(src)
+        arr = read_map(src)
+        check_map_fits(arr.shape, *geom.src_size, src)
         _write(dst, lambda: write_array_atomic(dst, apply_geometry(arr, geom, nearest=True)))
     return dst
-
-
-def _read_map(src: Path) -> np.ndarray:
-    if src.suffix.lower() == ".npy":
-        try:
-            arr = np.squeeze(np.load(src, allow_pickle=False))
-        except (ValueError, OSError, EOFError) as exc:
-            raise DataError(
-                f"not a valid .npy array ({exc})", where=str(src), fix="re-save it with numpy.save"
-            ) from None
-        if arr.ndim not in (2, 3):
-            raise DataError(f"per-pixel map must be [H, W] or [H, W, C], got {arr.shape}", where=str(src))
-        if arr.dtype == np.bool_:
-            return arr.astype(np.uint8)  # masks: 0/1 survive nearest resampling exactly
-        if arr.dtype not in (np.uint8, np.uint16, np.int16, np.float32, np.float64):
-            return arr.astype(np.float32)  # dtypes OpenCV cannot resample
-        return arr
-    return decode_raw(src, "per-pixel map")
 
 
 def _write(dst: Path, write) -> None:

@@ -86,13 +86,51 @@ def frame_geometry(frame: Frame, downscale: int) -> Geometry:
     return Geometry(size, src, dist, pinhole, out_size, out, downscale)
 
 
+MAX_ZOOM = 4.0
+"""Largest factor by which undistortion may change the focal length: real lenses (even wide
+fisheyes cropped to the valid area) stay well inside it; beyond it the coefficients are absurd
+(the whole image would map to a sliver of the view or fold over itself)."""
+
+
+def _radial_folds(src: Intrinsics, dist: tuple[float, ...], size: tuple[int, int]) -> bool:
+    """True when the radial distortion is not one-to-one out to the image's farthest corner: the
+    distorted radius stops growing before it gets there (strong negative k1 folds the image), so
+    no undistortion exists. Tangential terms are small by construction and left out."""
+    k = [*dist, *[0.0] * 8]  # (k1, k2, p1, p2, k3, k4, k5, k6, ...) padded
+    k1, k2, k3, k4, k5, k6 = k[0], k[1], k[4], k[5], k[6], k[7]
+    w, h = size
+    corner = max(math.hypot((x - src.cx) / src.fx, (y - src.cy) / src.fy) for x in (0, w) for y in (0, h))
+    r = np.linspace(0.0, 4.0 * corner, 4001)[1:]  # [R] undistorted radii
+    r2 = r * r
+    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    rd = r * num / den  # [R] distorted radii
+    reach = np.nonzero(rd >= corner)[0]
+    if len(reach) == 0 or not np.all(np.isfinite(rd[: reach[0] + 1])):
+        return True
+    return bool(np.any(np.diff(rd[: reach[0] + 1]) <= 0))
+
+
 def _undistorted_intrinsics(
     src: Intrinsics, dist: tuple[float, ...], size: tuple[int, int], frame: Frame
 ) -> Intrinsics:
+    if _radial_folds(src, dist, size):
+        raise DataError(
+            f"cannot undistort frame {frame.name}: distortion {dist} folds the image over itself before "
+            "its corners (no one-to-one undistortion exists)",
+            where=str(frame.image_path),
+            fix="check the distortion coefficients and the camera model they belong to",
+        )
     K, _roi = cv2.getOptimalNewCameraMatrix(src.K_cv(), _dist_array(dist), size, 0.0, size)
     new = Intrinsics.from_K_cv(K)
     vals = (new.fx, new.fy, new.cx, new.cy)
-    if not all(math.isfinite(v) for v in vals) or new.fx <= 0 or new.fy <= 0:
+    zoom = new.fx / src.fx if math.isfinite(new.fx) else math.inf
+    if (
+        not all(math.isfinite(v) for v in vals)
+        or new.fx <= 0
+        or new.fy <= 0
+        or not 1 / MAX_ZOOM <= zoom <= MAX_ZOOM
+    ):
         raise DataError(
             f"cannot undistort frame {frame.name}: distortion {dist} gives an invalid pinhole camera",
             where=str(frame.image_path),

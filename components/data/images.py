@@ -127,6 +127,44 @@ def read_image(path: Path) -> np.ndarray:
     return to_rgb(to_uint8(decode_raw(Path(path), "image")))
 
 
+MAP_ASPECT_TOLERANCE = 0.02
+"""A per-pixel map may be stored at another resolution than its image (a half-size depth map is
+common) but not with another shape: a relative aspect difference above this is refused."""
+
+
+def check_map_fits(shape: tuple[int, ...], width: int, height: int, path: Path) -> None:
+    """DataError when a map of ``shape`` [h, w, ...] cannot be the map of a ``width`` x ``height``
+    image: resizing it anyway would pair pixels with the wrong depths."""
+    h, w = int(shape[0]), int(shape[1])
+    if h < 1 or w < 1 or abs((w / h) / (width / height) - 1.0) > MAP_ASPECT_TOLERANCE:
+        raise DataError(
+            f"map is {w}x{h} but its image is {width}x{height} (another aspect ratio)",
+            where=str(path),
+            fix="write the map at the image's size (or a uniform scale of it)",
+        )
+
+
+def read_map(src: Path) -> np.ndarray:
+    """A per-pixel map (``.npy`` [H, W] or [H, W, C], or an image file) as stored; DataError when
+    it is not one."""
+    src = Path(src)
+    if src.suffix.lower() == ".npy":
+        try:
+            arr = np.squeeze(np.load(src, allow_pickle=False))
+        except (ValueError, OSError, EOFError) as exc:
+            raise DataError(
+                f"not a valid .npy array ({exc})", where=str(src), fix="re-save it with numpy.save"
+            ) from None
+        if arr.ndim not in (2, 3):
+            raise DataError(f"per-pixel map must be [H, W] or [H, W, C], got {arr.shape}", where=str(src))
+        if arr.dtype == np.bool_:
+            return arr.astype(np.uint8)  # masks: 0/1 survive nearest resampling exactly
+        if arr.dtype not in (np.uint8, np.uint16, np.int16, np.float32, np.float64):
+            return arr.astype(np.float32)  # dtypes OpenCV cannot resample
+        return arr
+    return decode_raw(src, "per-pixel map")
+
+
 def read_depth(path: Path, png_scale: float = PNG_DEPTH_SCALE) -> np.ndarray:
     """Depth map -> float32 [H, W].
 

@@ -23,16 +23,18 @@ from components.data.config import DataConfig
 from components.data.geometry import Geometry, frame_geometry
 from components.data.images import image_size
 from components.data.parsers import AUTO_ORDER
-from components.data.scene import Frame, ParsedScene, SceneData, SceneTransform
+from components.data.sanity import (
+    check_camera_spread,
+    check_downscaled_size,
+    check_principal_points,
+    check_seed_visibility,
+)
+from components.data.scene import DataWarning, Frame, ParsedScene, SceneData, SceneTransform
 from tridehaze_plugin.errors import DataError
 from tridehaze_plugin.registry import REGISTRY
 
 ROTATION_TOL = 1e-3
 """Largest accepted deviation of a pose rotation from orthonormal (|R^T R - I|, |det R - 1|)."""
-
-
-class DataWarning(UserWarning):
-    """Something in the dataset was skipped or adjusted; loading went on."""
 
 
 def load_scene(cfg: DataConfig) -> SceneData:
@@ -44,9 +46,12 @@ def load_scene(cfg: DataConfig) -> SceneData:
     frames = validate_frames(parsed, root, skip_missing=cfg.skip_missing_images)
     train, test = split_indices(frames, parsed, cfg.test_every, root)
     geoms = [frame_geometry(f, cfg.downscale) for f in frames]
+    check_downscaled_size(frames, [g.out_size for g in geoms], cfg.downscale)
+    c2w_raw = torch.from_numpy(np.stack([f.c2w for f in frames]))  # [N, 4, 4] float64
+    check_camera_spread(frames, c2w_raw[:, :3, 3].numpy())
+    check_principal_points(frames, root)
     paths = _prepare_files(frames, geoms, scene_cache_dir(root, cfg.cache_dir))
 
-    c2w_raw = torch.from_numpy(np.stack([f.c2w for f in frames]))  # [N, 4, 4] float64
     transform = normalizing_transform(c2w_raw[:, :3, 3], center=cfg.center_poses, scale=cfg.scale_poses)
     c2w = transform.apply_c2w(c2w_raw)
     cameras = Cameras(
@@ -58,14 +63,7 @@ def load_scene(cfg: DataConfig) -> SceneData:
         width=torch.tensor([g.out_size[0] for g in geoms], dtype=torch.int64),
         height=torch.tensor([g.out_size[1] for g in geoms], dtype=torch.int64),
     )
-    points = colors = None
-    if parsed.points is not None and len(parsed.points):
-        raw = np.asarray(parsed.points, np.float64)  # [M, 3] in the dataset's frame
-        normalised = transform.apply_points(torch.from_numpy(raw))  # [M, 3] the frame training sees
-        keep = usable_points(raw, normalised.numpy(), c2w_raw[:, :3, 3].numpy(), root)
-        points = normalised[torch.from_numpy(keep)].float()
-        if parsed.point_colors is not None:  # [M, 3] in [0, 1]
-            colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)[keep]).float() / 255.0
+    points, colors = _seed_points(parsed, transform, c2w_raw, frames, geoms, root)
     return SceneData(
         name=root.name,
         root=root,
@@ -86,6 +84,35 @@ def load_scene(cfg: DataConfig) -> SceneData:
         test_is_clean=parsed.test_is_clean,
         frame_names=[f.name for f in frames],
     )
+
+
+def _seed_points(
+    parsed: ParsedScene,
+    transform: SceneTransform,
+    c2w_raw: torch.Tensor,
+    frames: list[Frame],
+    geoms: list[Geometry],
+    root: Path,
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The usable seed points [M, 3] in the normalised frame and their colours [M, 3] in [0, 1]
+    (None when the dataset has none), after checking that the cameras see them."""
+    points = colors = None
+    if parsed.points is not None and len(parsed.points):
+        raw = np.asarray(parsed.points, np.float64)  # [M, 3] in the dataset's frame
+        normalised = transform.apply_points(torch.from_numpy(raw))  # [M, 3] the frame training sees
+        keep = usable_points(raw, normalised.numpy(), c2w_raw[:, :3, 3].numpy(), root)
+        check_seed_visibility(
+            raw[keep],
+            c2w_raw.numpy(),
+            np.array([[g.pinhole.fx, g.pinhole.fy, g.pinhole.cx, g.pinhole.cy] for g in geoms]),  # [N, 4]
+            np.array([g.src_size for g in geoms], dtype=np.float64),  # [N, 2]
+            [f.name for f in frames],
+            root,
+        )
+        points = normalised[torch.from_numpy(keep)].float()
+        if parsed.point_colors is not None:  # [M, 3] in [0, 1]
+            colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)[keep]).float() / 255.0
+    return points, colors
 
 
 FAR_POINT = 1e4

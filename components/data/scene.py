@@ -16,6 +16,11 @@ import torch
 from torch import Tensor
 
 from components.data.cameras import Cameras
+from tridehaze_plugin.errors import InputWarning
+
+
+class DataWarning(InputWarning):
+    """Something in the dataset was skipped or adjusted; loading went on."""
 
 
 @dataclass

@@ -15,8 +15,8 @@ import torch
 from torch import Tensor, nn
 
 from components.gaussians.knn import knn_distances
-from components.gaussians.sh import num_sh_bases, rgb_to_sh
-from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from components.gaussians.sh import MAX_SH_DEGREE, num_sh_bases, rgb_to_sh
+from tridehaze_plugin.config import ComponentConfig, NonNegative, Positive, Range, RegistryChoice
 from tridehaze_plugin.registry import REGISTRY, register
 
 if TYPE_CHECKING:
@@ -33,13 +33,13 @@ class GaussianModelConfig(ComponentConfig):
 
     backend: Annotated[str, RegistryChoice("gaussian_model")] = "3dgs"
     """Gaussian model implementation (registry name)."""
-    sh_degree: int = 3
+    sh_degree: Annotated[int, Range(0, MAX_SH_DEGREE)] = 3
     """Highest spherical-harmonics degree of the view-dependent colour (0..3)."""
     sh_degree_interval: int = 1000
     """One more SH band becomes active every this many steps (degree 0 at step 0)."""
-    init_opacity: float = 0.1
+    init_opacity: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 0.1
     """Opacity of every Gaussian at initialisation."""
-    init_scale_mult: float = 1.0
+    init_scale_mult: Annotated[float, Positive] = 1.0
     """Multiplier on the initial scale (RMS distance to the 3 nearest seed points)."""
     random_init_points: int = 20000
     """Number of random Gaussians when the dataset has no seed point cloud."""
@@ -47,17 +47,17 @@ class GaussianModelConfig(ComponentConfig):
     """Random Gaussians fill a cube of half-size ``random_init_extent * scene_extent``."""
     max_init_points: int | None = None
     """Randomly subsample the seed cloud to at most this many points (None: keep all)."""
-    means_lr: float = 1.6e-4
+    means_lr: Annotated[float, NonNegative] = 1.6e-4
     """Learning rate of the centres, multiplied by the scene extent."""
-    scales_lr: float = 5e-3
+    scales_lr: Annotated[float, NonNegative] = 5e-3
     """Learning rate of the log-scales."""
-    quats_lr: float = 1e-3
+    quats_lr: Annotated[float, NonNegative] = 1e-3
     """Learning rate of the quaternions."""
-    opacities_lr: float = 5e-2
+    opacities_lr: Annotated[float, NonNegative] = 5e-2
     """Learning rate of the opacity logits."""
-    sh0_lr: float = 2.5e-3
+    sh0_lr: Annotated[float, NonNegative] = 2.5e-3
     """Learning rate of the DC colour coefficients."""
-    shN_lr: float | None = None
+    shN_lr: Annotated[float | None, NonNegative] = None
     """Learning rate of the higher SH bands (None: ``sh0_lr / 20``)."""
 
     def setup(  # type: ignore[override]

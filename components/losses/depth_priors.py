@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from components.data.images import read_depth
+from components.data.images import check_map_fits, read_depth
 from components.losses.dcp import DCPResult, estimate_dcp
 
 DCP_T_MAX = 0.99
@@ -36,6 +36,7 @@ def depth_from_file(path: Path, height: int, width: int, disparity: bool = False
     Downscaling averages the valid pixels only (no blending with holes); upscaling is nearest.
     """
     arr = read_depth(Path(path))  # [h, w] float32
+    check_map_fits(arr.shape, width, height, Path(path))
     valid = np.isfinite(arr) & (arr > 0)
     arr = np.where(valid, arr, 0.0).astype(np.float32)
     if disparity:

@@ -8,7 +8,7 @@ from typing import Annotated
 import kornia
 from torch import Tensor
 
-from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.config import ComponentConfig, Range, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY, register
 
@@ -19,9 +19,9 @@ class ReconstructionLossConfig(ComponentConfig):
 
     backend: Annotated[str, RegistryChoice("loss")] = "l1-ssim"
     """Registered photometric loss."""
-    lambda_ssim: float = 0.2
+    lambda_ssim: Annotated[float, Range(0.0, 1.0)] = 0.2
     """Weight of the (1 - SSIM) term; the L1 term gets (1 - lambda_ssim)."""
-    ssim_window: int = 11
+    ssim_window: Annotated[int, Range(3, 63, odd=True)] = 11
     """Gaussian window size of SSIM (odd)."""
 
     def check_values(self, prefix: str = "--pipeline.loss.") -> None:

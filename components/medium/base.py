@@ -20,8 +20,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from components.gaussians.sh import eval_sh, num_sh_bases
-from tridehaze_plugin.config import ComponentConfig, RegistryChoice
-from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.config import ComponentConfig, NonNegative, Range, RegistryChoice, check_numbers
 from tridehaze_plugin.registry import REGISTRY
 
 if TYPE_CHECKING:
@@ -101,34 +100,34 @@ class MediumConfig(ComponentConfig):
     ``gaussian-bound``, ``none``, or ``auto``: before training a haze probe of the training views
     classifies the haze (none / homogeneous / varying / unsure), picks ``none`` only for a capture
     it can show to be clear (else triplane) and logs why, with a confidence (docs/tradeoff.md)."""
-    resolution: int = 64
+    resolution: Annotated[int, Range(2, 1024)] = 64
     """Tri-plane side (three planes of resolution^2 cells); other grids match its feature budget."""
-    channels: int = 8
+    channels: Annotated[int, Range(1, 256)] = 8
     """Feature channels per plane cell (the tri-plane feature is 3 * channels wide)."""
-    hidden: int = 64
+    hidden: Annotated[int, Range(1, 4096)] = 64
     """Width of the two-layer heads (and of the coordinate MLPs)."""
     light: Literal["sh", "rgb"] = "sh"
     """Medium light: direction-dependent spherical harmonics, or a direction-free RGB colour
     (the paper's "tri-plane RGB" ablation)."""
-    sh_degree: int = 1
+    sh_degree: Annotated[int, Range(0, 2)] = 1
     """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
-    num_frequencies: int = 6
+    num_frequencies: Annotated[int, Range(0, 32)] = 6
     """Octaves of the ``fourier`` encoder (sin/cos of 2^k pi x)."""
-    lr: float = 1e-2
+    lr: Annotated[float, NonNegative] = 1e-2
     """Learning rate of the field's features and heads."""
-    kappa_lr: float = 1e-2
+    kappa_lr: Annotated[float, NonNegative] = 1e-2
     """Learning rate of log(kappa), the global extinction scale."""
-    init_beta: float = 0.1
+    init_beta: Annotated[float, NonNegative] = 0.1
     """Initial extinction (1 / scene unit) everywhere; replaced by a dark-channel estimate when the
     pipeline initialises the medium from data."""
     init_light: tuple[float, float, float] = (0.7, 0.7, 0.7)
     """Initial medium light (RGB); replaced by the dark-channel airlight estimate when available."""
-    tv_weight: float = 0.0
+    tv_weight: Annotated[float, NonNegative] = 0.0
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
 
     def check_values(self, prefix: str = "--pipeline.medium.") -> None:
-        if self.light == "sh" and not 0 <= self.sh_degree <= 2:
-            raise ConfigError(f"{prefix}sh-degree must be 0, 1 or 2, got {self.sh_degree}")
+        """The declared ranges, also for a config built in code rather than parsed."""
+        check_numbers(self, prefix.removeprefix("--"))
 
     def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
         if self.backend == "auto":

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import torch
 from torch import Tensor
@@ -33,6 +34,7 @@ from torch.nn import functional as F
 
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
+from tridehaze_plugin.config import Positive, Range
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -48,12 +50,12 @@ class CompositeConfig:
     the image size (8 at 320x240, 3 at 128x96)."""
     coarse_rays: int = 1200
     """Target number of marched rays per view when ``ray_stride`` is None."""
-    far: float | None = None
+    far: Annotated[float | None, Positive] = None
     """Far bound (scene units of camera z) for background pixels; None: the diagonal of the
     medium's bounding box, so background rays cross the whole modelled medium."""
     depth_gradient: bool = False
     """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
-    t_floor: float = 1e-6
+    t_floor: Annotated[float, Range(0.0, 0.5, lo_open=True)] = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:

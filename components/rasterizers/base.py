@@ -15,7 +15,7 @@ from typing import Annotated, Any, ClassVar
 import torch
 from torch import Tensor
 
-from tridehaze_plugin.config import ComponentConfig, RegistryChoice
+from tridehaze_plugin.config import ComponentConfig, NonNegative, Positive, Range, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY, Registry
 
@@ -180,15 +180,22 @@ class RasterizerConfig(ComponentConfig):
     backend: Annotated[str, RegistryChoice("rasterizer", allow=("auto",))] = "auto"
     """Backend: ``auto``, ``torch`` (pure PyTorch reference), ``cpu`` or ``gsplat`` once registered.
     ``auto`` picks gsplat for a run on CUDA when it is installed, else cpu, else torch."""
-    near_plane: float = 0.01
+    near_plane: Annotated[float, Positive] = 0.01
     """Gaussians whose centre has camera z <= this are culled."""
-    far_plane: float = 1e10
+    far_plane: Annotated[float, Positive] = 1e10
     """Gaussians whose centre has camera z >= this are culled."""
-    eps2d: float = 0.3
+    eps2d: Annotated[float, NonNegative] = 0.3
     """Low-pass filter: added to the diagonal of every 2D covariance (pixels^2), as in 3DGS."""
-    tile_size: int = 16
+    tile_size: Annotated[int, Range(1, 1024)] = 16
     """Tile edge in pixels for binning. The image does not depend on it (each Gaussian's box holds
     every pixel its alpha reaches 1/255 in); 16 as gsplat, and what the cpu kernel is tuned for."""
+
+    def check_values(self, prefix: str = "--pipeline.rasterizer.") -> None:
+        if self.far_plane <= self.near_plane:
+            raise ConfigError(
+                f"{prefix}far-plane ({self.far_plane:g}) must be greater than {prefix}near-plane "
+                f"({self.near_plane:g})"
+            )
 
     def setup(self, device: torch.device | None = None, **kwargs: Any) -> Rasterizer:
         """Build the backend instance (``auto`` resolved now, in this process, for the run's device)."""

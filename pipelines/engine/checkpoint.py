@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import pickle
+import shutil
 import tempfile
 import zipfile
 from dataclasses import dataclass
@@ -60,8 +62,15 @@ def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
+        full = _out_of_space(path.parent, exc)  # before the partial file frees its space again
         Path(tmp).unlink(missing_ok=True)
+        if full:
+            raise UserError(
+                "no space left on the device while writing a checkpoint",
+                where=str(path),
+                fix="free some space and resume the run (--resume); its earlier checkpoints are intact",
+            ) from None
         raise
     if keep > 0:
         for old in sorted(path.parent.glob(CHECKPOINT_GLOB))[:-keep]:
@@ -69,6 +78,19 @@ def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
     for stale in path.parent.glob(".tmp-*.ckpt"):  # left by a process killed mid-write (SIGKILL)
         stale.unlink(missing_ok=True)
     return path
+
+
+def _out_of_space(folder: Path, exc: BaseException) -> bool:
+    """Whether a failed write ran out of disk: torch.save reports that as a RuntimeError about the
+    file position, not as ENOSPC, so the free space is looked at too."""
+    if isinstance(exc, OSError):
+        return exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    if not isinstance(exc, RuntimeError):
+        return False
+    try:
+        return shutil.disk_usage(folder).free < 1 << 20
+    except OSError:
+        return False
 
 
 def latest_checkpoint(run_dir: Path) -> Path | None:

@@ -13,6 +13,7 @@ from pipelines.engine.contract import PipelineConfig
 from pipelines.engine.device import check_device_name
 from pipelines.engine.early_stop import EarlyStopConfig
 from pipelines.engine.optimizers import OptimizerConfig
+from tridehaze_plugin.config import SEED_RANGE
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -81,7 +82,7 @@ class TrainerConfig:
     """Run folder name; default: the current local time (YYYY-mm-dd_HHMMSS)."""
     max_steps: int = 3000
     """Number of optimisation steps."""
-    seed: int = 42
+    seed: Annotated[int, SEED_RANGE] = 42
     """Random seed for initialisation, view order and anything stochastic."""
     vis: Literal["auto", "none", "viewer"] = "auto"
     """Visualisation: ``viewer`` (live browser viewer, see --viewer.*), ``none`` (progress bar only),
@@ -132,10 +133,11 @@ def check_folder_name(flag: str, name: str) -> None:
         or name in (".", "..")
         or any(sep in name for sep in ("/", "\\"))
         or any(ord(ch) < 32 for ch in name)
+        or len(name.encode("utf-8", "surrogateescape")) > 200
     )
     if bad:
         raise ConfigError(
-            f"{flag} must be one plain folder name (no path separators, '.', '..' or control characters), "
+            f"{flag} must be one plain folder name (no path separators, '.', '..' or control characters; at most 200 bytes), "
             f"got {name!r}",
             fix=f"use e.g. {flag} run-1",
         )

@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import torch
 from torch import nn
+
+from tridehaze_plugin.config import Positive, Range
 
 
 @dataclass
 class OptimizerConfig:
     """Adam settings shared by every parameter group."""
 
-    eps: float = 1e-15
+    eps: Annotated[float, Positive] = 1e-15
     """Adam epsilon (3DGS uses 1e-15)."""
-    means_lr_final_ratio: float = 0.01
+    means_lr_final_ratio: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 0.01
     """The means' learning rate decays exponentially to this fraction of its start by the last step."""
 
 
@@ -51,6 +54,20 @@ class Optimizers:
         return {name: opt.state_dict() for name, opt in self.optimizers.items()}
 
     def load_state_dict(self, state: dict) -> None:
+        """Load, then check every moment tensor has its parameter's shape: torch does not, and a
+        mismatch would surface as a shape error inside Adam's first step."""
         for name, opt in self.optimizers.items():
             if name in state:
                 opt.load_state_dict(state[name])
+                _check_moments(name, opt)
+
+
+def _check_moments(name: str, opt: torch.optim.Optimizer) -> None:
+    for group in opt.param_groups:
+        for p in group["params"]:
+            for key, value in opt.state.get(p, {}).items():
+                if isinstance(value, torch.Tensor) and value.dim() > 0 and value.shape != p.shape:
+                    raise ValueError(
+                        f"optimiser state '{key}' of {name} has shape {tuple(value.shape)}, "
+                        f"its parameter {tuple(p.shape)}"
+                    )

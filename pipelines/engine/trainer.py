@@ -73,7 +73,12 @@ def make_run_dir(cfg: TrainerConfig, scene_name: str) -> tuple[Path, Path]:
     created = run_dir
     while not created.parent.exists():
         created = created.parent
-    run_dir.mkdir(parents=True)
+    try:
+        run_dir.mkdir(parents=True)
+    except OSError:  # e.g. a name too long: take back the parents this call made
+        if created != run_dir:
+            shutil.rmtree(created, ignore_errors=True)
+        raise
     return run_dir, created
 
 

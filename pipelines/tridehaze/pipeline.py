@@ -123,7 +123,7 @@ class GaussianPipelineConfig(PipelineConfig):
         ):
             if v < 0:
                 raise ConfigError(f"{flag} must be >= 0, got {v}")
-        for sub in (self.loss, self.composite, self.medium, self.densify):
+        for sub in (self.loss, self.composite, self.medium, self.densify, self.rasterizer):
             sub.check_values()
         if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
             raise ConfigError(

@@ -35,13 +35,16 @@ from tridehaze_plugin.cli.train import parse_args
 @dataclass(frozen=True)
 class Case:
     command: str
-    """train, eval, render, synth or export."""
+    """train, eval, render, synth, export or ablate."""
     args: tuple[str, ...]
     """Arguments; ``{run}``, ``{config}``, ``{scene}`` and ``{fx}`` (prepared bad inputs) are filled in."""
     expect: str
     """Start of the message after ``error: ``; for a tyro box, text somewhere in it."""
     box: bool = False
     """A tyro parse error (boxed, several lines) rather than our one-line error."""
+    warnings: int = 0
+    """``warning:`` lines expected before the error (the input is also odd in a way that alone
+    would only be warned about)."""
     env: dict[str, str] = field(default_factory=dict)
 
 
@@ -133,6 +136,62 @@ CASES: dict[str, Case] = {
     ),
     "train: --load-config with python tags (unsafe YAML)": Case(
         "train", ("--load-config", "{fx}/unsafe/config.yml"), "config file is not valid YAML"
+    ),
+    # ------------------------------------------ flag values that used to reach the code (one each)
+    **{
+        f"train: {flag} {value}": Case("train", (*TRAIN, "--data", "{scene}", flag, value), expect)
+        for flag, value, expect in (
+            ("--downscale", "1000", "--downscale 1000 makes frame"),
+            ("--pipeline.medium.resolution", "0", "--pipeline.medium.resolution must be >= 2"),
+            ("--pipeline.loss.ssim-window", "4", "--pipeline.loss.ssim-window must be an odd integer"),
+            ("--pipeline.loss.ssim-window", "1", "--pipeline.loss.ssim-window must be an odd integer"),
+            ("--pipeline.rasterizer.tile-size", "0", "--pipeline.rasterizer.tile-size must be >= 1"),
+            ("--pipeline.model.sh-degree", "9", "--pipeline.model.sh-degree must be >= 0 and <= 3"),
+            ("--seed", str(2**65), "--seed must be >= 0 and <= 4294967295"),
+            ("--seed", "-1", "--seed must be >= 0"),
+        )
+    },
+    "ablate: unterminated quote in --train-args": Case(
+        "ablate",
+        ("--scenes", "{scene}", "--output-dir", "{fx}/abl", '--train-args=--seed "7'),
+        "--train-args cannot be split into arguments",
+    ),  # fmt: skip
+    "train: --timestamp longer than a file name may be": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--timestamp", "t" * 300), "--timestamp must be one plain"
+    ),
+    "train: --output-dir longer than the system allows": Case(
+        "train", (*TRAIN, "--data", "{scene}", "--output-dir", "{fx}/" + "d" * 300), "File name too long"
+    ),
+    # ------------------------------------------------ values that used to be accepted silently
+    **{
+        f"train: {flag} {value}": Case("train", (*TRAIN, "--data", "{scene}", flag, value), expect)
+        for flag, value, expect in (
+            ("--pipeline.model.means-lr", "-1", "--pipeline.model.means-lr must be >= 0"),
+            ("--pipeline.medium.lr", "-0.1", "--pipeline.medium.lr must be >= 0"),
+            ("--pipeline.rasterizer.near-plane", "-1", "--pipeline.rasterizer.near-plane must be > 0"),
+            ("--pipeline.rasterizer.far-plane", "0.001", "--pipeline.rasterizer.far-plane (0.001) must be"),
+            ("--pipeline.composite.far", "-2", "--pipeline.composite.far must be > 0"),
+            ("--optimizer.means-lr-final-ratio", "-1", "--optimizer.means-lr-final-ratio must be > 0"),
+        )
+    },
+    **{
+        f"train: dataset with {what}": Case("train", (*TRAIN, "--data", f"{{fx}}/{name}"), expect, warnings=w)
+        for name, what, expect, w in (
+            ("fx_huge", "a focal length that puts every point off-screen", "no seed point projects", 0),
+            ("cx_off", "principal points far off the image", "no seed point projects", 1),
+            ("k1_fold", "distortion that folds the image", "cannot undistort frame", 0),
+            ("k1_huge", "absurdly large distortion", "cannot undistort frame", 0),
+            ("far_cam", "a camera a billion units from the rest", "camera of frame", 0),
+            ("bad_depth", "depth maps of another shape", "map is 40x5 but its image is 32x24", 0),
+        )
+    },
+    "train: config.yml that sets a key twice": Case(
+        "train",
+        ("--load-config", "{fx}/dup_key/config.yml"),
+        "config file sets a key twice ('max_steps' at line 3)",
+    ),
+    "eval: config.yml that sets a key twice": Case(
+        "eval", ("--load-config", "{fx}/dup_key/config.yml", *EVAL), "config file sets a key twice"
     ),
     # ------------------------------------- runaway memory or time on small files (run under a cap)
     "train: --load-config with a YAML alias bomb in max_steps": Case(
@@ -385,6 +444,9 @@ def world(tmp_path_factory) -> dict[str, Path]:
     for kind, value in {"nan": np.nan, "inf": np.inf, "1e30": 1e30}.items():
         ply = json.loads((scene / "transforms.json").read_text())["ply_file_path"]
         write_ply_points(_copy_scene(scene, fx / f"points_{kind}") / ply, np.full((50, 3), value))
+    _bad_cameras(scene, fx)
+    (fx / "dup_key").mkdir()
+    (fx / "dup_key" / "config.yml").write_text("method_name: tri-dehaze\nmax_steps: 5\nmax_steps: 7\n")
     (fx / "unsafe").mkdir()
     (fx / "unsafe" / "config.yml").write_text("method_name: !!python/object/apply:os.system ['echo pwned']\n")
 
@@ -408,6 +470,34 @@ def world(tmp_path_factory) -> dict[str, Path]:
         "run": run, "config": run / "config.yml", "scene": scene, "fx": fx, "root": root,
         "outputs": root / "outputs",
     }  # fmt: skip
+
+
+def _bad_cameras(scene: Path, fx: Path) -> None:
+    """Datasets whose frames each pass their own checks but whose cameras make training meaningless."""
+
+    def variant(name: str, edit) -> None:  # noqa: ANN001 - edits the parsed transforms.json
+        meta = json.loads((_copy_scene(scene, fx / name) / "transforms.json").read_text())
+        edit(meta, fx / name)
+        (fx / name / "transforms.json").write_text(json.dumps(meta))
+
+    def each(**values):  # noqa: ANN202
+        return lambda meta, _: [f.update(values) for f in meta["frames"]]
+
+    def far(meta, _) -> None:  # noqa: ANN001
+        meta["frames"][2]["transform_matrix"][0][3] = 1e9
+
+    def depth(meta, root: Path) -> None:  # noqa: ANN001
+        (root / "bad_depth").mkdir()
+        for i, f in enumerate(meta["frames"]):
+            np.save(root / "bad_depth" / f"{i}.npy", np.ones((5, 40), np.float32))
+            f["depth_file_path"] = f"bad_depth/{i}.npy"
+
+    variant("fx_huge", each(fl_x=1e9, fl_y=1e9))
+    variant("cx_off", each(cx=1e6))
+    variant("k1_fold", each(k1=-50.0))
+    variant("k1_huge", each(k1=1e6))
+    variant("far_cam", far)
+    variant("bad_depth", depth)
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[bytes | None, int]]:
@@ -484,7 +574,9 @@ def _check(case: Case, res: subprocess.CompletedProcess) -> None:
         assert case.expect in res.stderr, res.stderr
         return
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, res.stderr
+    assert len(lines) == 1 + case.warnings, res.stderr
+    assert all(ln.startswith("warning: ") for ln in lines[:-1]), res.stderr
+    lines = lines[-1:]
     assert lines[0].startswith(f"error: {case.expect}"), lines[0]
 
 

@@ -39,6 +39,11 @@ def _means(p: dict) -> torch.Tensor:
     return p["pipeline"]["model.params.means"]
 
 
+def _first_moment(payload: dict) -> dict:
+    """The Adam state of the means (the first parameter of their optimiser)."""
+    return payload["optimizers"]["means"]["state"][0]
+
+
 def _set(key: str, value) -> Callable[[dict], None]:  # noqa: ANN001 - any payload value
     return lambda p: p.__setitem__(key, value)
 
@@ -75,6 +80,11 @@ CASES = {
     "optimiser state of another kind": (
         _set("optimizers", {"means": "adam"}),
         "checkpoint's optimiser or RNG state does not fit this run",
+        None,
+    ),
+    "optimiser moments of the wrong shape": (
+        lambda p: _first_moment(p).__setitem__("exp_avg", torch.zeros(3, 1)),
+        "checkpoint's optimiser or RNG state does not fit this run (optimiser state 'exp_avg' of",
         None,
     ),
     "broken RNG state": (

@@ -11,12 +11,11 @@ paper's claims checked against our numbers), ``OUT/ablation.csv``, ``OUT/ablatio
 from __future__ import annotations
 
 import json
-import shlex
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
@@ -28,8 +27,8 @@ from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.ablation import FAMILIES, plan
 from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
 from pipelines.experiments.tables import bar_plot, claims_table, csv_text, markdown_table
-from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.cli.common import run_cli, split_train_args
+from tridehaze_plugin.config import SEED_RANGE, check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -51,7 +50,7 @@ class AblateArgs:
     """Runs in parallel (separate processes)."""
     threads: int = 1
     """Torch threads per run (jobs x threads should not exceed the cores)."""
-    seed: int = 42
+    seed: Annotated[int, SEED_RANGE] = 42
     """Seed of every run."""
     bins: Literal["auto", "model", "reference", "none"] = "reference"
     """Transmittance for the visibility bins (``reference``: the dataset's own, the same pixels for
@@ -69,7 +68,7 @@ class AblateArgs:
 
 
 def _check(args: AblateArgs) -> None:
-    check_finite(args)
+    check_numbers(args)
     if not args.scenes:
         raise ConfigError("no scenes given", fix="pass --scenes DIR [DIR ...]")
     names = [p.name for p in args.scenes]
@@ -107,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
     jobs = [Job(scene, v) for scene in args.scenes for v in variants]
     opts = RunnerOptions(
         output_dir=args.output_dir, max_steps=args.max_steps, seed=args.seed, threads=args.threads,
-        jobs=args.jobs, bins=args.bins, lpips=args.lpips, extra=tuple(shlex.split(args.train_args)),
+        jobs=args.jobs, bins=args.bins, lpips=args.lpips, extra=split_train_args(args.train_args),
     )  # fmt: skip
     runner = AblationRunner(opts)
     if args.dry_run:

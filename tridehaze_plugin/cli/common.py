@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import shlex
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from tridehaze_plugin.errors import EXIT_USER_ERROR, ConfigError, UserError
+from tridehaze_plugin.errors import EXIT_USER_ERROR, ConfigError, InputWarning, UserError
 
 
 def fail(message: str) -> NoReturn:
@@ -16,12 +19,45 @@ def fail(message: str) -> NoReturn:
     raise SystemExit(EXIT_USER_ERROR)
 
 
+SYSTEM_LIMITS = {
+    errno.ENOSPC: "free some space (or point --output-dir elsewhere) and run again; earlier "
+    "checkpoints are intact",
+    errno.EDQUOT: "free some space within your quota and run again; earlier checkpoints are intact",
+    errno.ENAMETOOLONG: "use a shorter path (each name at most 255 bytes)",
+    errno.EACCES: "choose a folder you may write to, or fix its permissions",
+    errno.EPERM: "choose a folder you may write to, or fix its permissions",
+    errno.EROFS: "choose a folder on a writable file system",
+}
+"""OS errors that are the machine's or the user's limits, not bugs: one line and exit 2."""
+
+
+def system_limit_message(exc: OSError) -> str:
+    where = exc.filename if isinstance(exc.filename, str) else None
+    shown_where = f" ({where[:120]}...)" if where and len(where) > 120 else (f" ({where})" if where else "")
+    return f"{exc.strerror or type(exc).__name__}{shown_where}; {SYSTEM_LIMITS[exc.errno]}"
+
+
+def _format_warning(message, category, filename, lineno, line=None) -> str:  # noqa: ANN001 - warnings' hook
+    if issubclass(category, InputWarning):
+        return f"warning: {message}\n"
+    return _default_format(message, category, filename, lineno, line)
+
+
+_default_format = warnings.formatwarning
+
+
 def run_cli(main: Callable[[], object]) -> None:
-    """Run ``main``; a :class:`UserError` becomes one line on stderr and exit code 2."""
+    """Run ``main``; a :class:`UserError` becomes one line on stderr and exit code 2, and an
+    :class:`InputWarning` one ``warning:`` line."""
+    warnings.formatwarning = _format_warning
     try:
         main()
     except UserError as exc:
         fail(exc.one_line())
+    except OSError as exc:
+        if exc.errno not in SYSTEM_LIMITS:
+            raise  # anything else is a bug: keep its traceback
+        fail(system_limit_message(exc))
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         raise SystemExit(130) from None
@@ -49,3 +85,15 @@ def check_output_folder(path: Path, flag: str = "--output-dir") -> None:
         raise ConfigError(
             f"{flag} is not writable", where=str(probe), fix="pick another folder or fix its permissions"
         )
+
+
+def split_train_args(text: str) -> tuple[str, ...]:
+    """``--train-args`` as td-train arguments, split like a shell would; a ConfigError (not a
+    traceback hours into a grid) when the quoting is broken."""
+    try:
+        return tuple(shlex.split(text))
+    except ValueError as exc:
+        raise ConfigError(
+            f"--train-args cannot be split into arguments ({exc}): {text[:200]!r}",
+            fix='balance the quotes, e.g. --train-args "--pipeline.medium.backend mlp"',
+        ) from None

@@ -24,7 +24,7 @@ from components.synth.writer import check_output_dir, staged_output, write_json
 from pipelines.engine.device import resolve_device
 from pipelines.engine.run_loader import load_run
 from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 from tridehaze_plugin.errors import ConfigError, UserError
 
 
@@ -122,7 +122,7 @@ def _print_summary(console: Console, args: ExportArgs, summary: dict[str, Any]) 
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(ExportArgs, args=sys.argv[1:] if argv is None else argv, prog="td-export")
-    check_finite(args)
+    check_numbers(args)
     export(args)
 
 

@@ -33,7 +33,7 @@ from rich.progress import (
 from components.sfm.colmap_sfm import Reporter, SfmOptions, check_sfm_output, list_images, run_sfm
 from components.synth.writer import staged_output, write_json
 from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 DESCRIPTION = "Structure-from-motion (pycolmap, CPU): photos or a video -> a dataset td-train reads."
@@ -211,7 +211,7 @@ def process(args: ImagesArgs | VideoArgs, console: Console | None = None) -> dic
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     cmd = tyro.cli(Command, args=args, prog="td-process-data", description=DESCRIPTION)  # type: ignore[arg-type]
-    check_finite(cmd)
+    check_numbers(cmd)
     process(cmd)
 
 

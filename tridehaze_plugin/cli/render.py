@@ -48,7 +48,7 @@ from pipelines.engine.run_loader import load_run
 from pipelines.evaluation.camera_paths import make_path
 from pipelines.evaluation.visualize import UNIT_RANGE, to_png, value_range
 from tridehaze_plugin.cli.common import check_output_folder, run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 from tridehaze_plugin.errors import ConfigError, UserError
 
 SIDE_BY_SIDE = "side-by-side"
@@ -223,7 +223,7 @@ def _check_video_args(args: RenderArgs) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(RenderArgs, args=sys.argv[1:] if argv is None else argv, prog="td-render")
-    check_finite(args)
+    check_numbers(args)
     check_output_folder(args.output_dir)
     device = _device(args.device)
     _check_video_args(args)

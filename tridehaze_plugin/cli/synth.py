@@ -20,7 +20,7 @@ from components.synth.generate import SceneConfig, generate_scene
 from components.synth.haze_existing import HazeConfig, haze_dataset
 from pipelines.evaluation.run_depth import run_depths
 from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 
 DESCRIPTION = "Hazy data with exact ground truth: procedural scenes, haze on existing datasets, a gallery."
 
@@ -34,7 +34,7 @@ Command = (
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     cmd = tyro.cli(Command, args=args, prog="td-synth", description=DESCRIPTION)  # type: ignore[arg-type]
-    check_finite(cmd)
+    check_numbers(cmd)
     console = Console(stderr=False)
     if isinstance(cmd, SceneConfig):
         meta = generate_scene(cmd)

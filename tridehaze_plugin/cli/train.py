@@ -19,7 +19,7 @@ from pipelines.engine.run_config import load_config
 from pipelines.engine.trainer import Trainer
 from pipelines.viewer import TrainingViewer
 from tridehaze_plugin.cli.common import check_output_folder, run_cli
-from tridehaze_plugin.config import check_finite, validate
+from tridehaze_plugin.config import check_numbers, validate
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import Registry, load_all
 
@@ -46,7 +46,7 @@ def parse_args(argv: list[str]) -> TrainerConfig:
     else:
         cfg = tyro.cli(method_union(registry), args=argv, prog="td-train", description=DESCRIPTION)
     validate(cfg, registry)
-    check_finite(cfg)
+    check_numbers(cfg)
     cfg.check_values()
     return cfg
 

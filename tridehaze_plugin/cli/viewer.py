@@ -19,7 +19,7 @@ from pipelines.engine.config import ViewerConfig
 from pipelines.engine.device import check_device_name, resolve_device
 from pipelines.engine.run_loader import load_run
 from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -47,7 +47,7 @@ class ViewerArgs:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(ViewerArgs, args=sys.argv[1:] if argv is None else argv, prog="td-viewer")
-    check_finite(args)
+    check_numbers(args)
     args.viewer.check_values(prefix="--")
     if not args.load_config.is_file():
         raise ConfigError("no such config file", where=str(args.load_config), fix="pass RUN/config.yml")
