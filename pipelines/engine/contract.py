@@ -94,7 +94,9 @@ class Pipeline(nn.Module, ABC):
 
     @property
     def composites_medium(self) -> bool:
-        """True when ``render`` composites a medium (its ``hazy`` differs from ``clean``)."""
+        """True when ``render`` composites a medium (its ``hazy`` differs from ``clean``); its
+        outputs then also hold ``transmittance`` [H, W, 1] and ``scattering`` [H, W, 3], which the
+        evaluation's medium-recovery protocol compares with the dataset's true maps."""
         return False
 
     def stats(self) -> dict[str, float | int]:

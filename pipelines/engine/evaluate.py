@@ -23,20 +23,21 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import cv2
-import numpy as np
 import torch
 from torch import Tensor
 
-from components.data.images import read_depth
 from pipelines.engine.contract import Pipeline
 from pipelines.engine.datamanager import DataManager
+from pipelines.engine.medium_recovery import (
+    REFERENCE_S_KEY,
+    REFERENCE_T_KEY,
+    MediumAccumulator,
+    reference_map,
+)
 from pipelines.engine.metrics import psnr, ssim, ssim_map
 
 BINS: tuple[tuple[str, float, float], ...] = (("high", 0.7, 2.0), ("mid", 0.4, 0.7), ("low", -1.0, 0.4))
 """(name, lower bound exclusive, upper bound inclusive) on the transmittance T."""
-REFERENCE_T_KEY = "gt_transmittance_file_path"
-"""Per-frame key of a dataset's true transmittance maps (written by ``td-synth``)."""
 BinSource = Literal["auto", "model", "reference", "none"]
 LpipsFn = Callable[[Tensor, Tensor], "Tensor | None"]
 """LPIPS of two [H, W, 3] images in [0, 1]; None where it cannot be computed (e.g. too small)."""
@@ -102,17 +103,6 @@ def _scores(pred: Tensor, target: Tensor, lpips_fn: LpipsFn | None) -> dict[str,
     }
 
 
-def reference_transmittance(dm: DataManager, idx: int, size: tuple[int, int]) -> Tensor | None:
-    """The dataset's true transmittance of view ``idx`` resized to ``size`` = (H, W), or None."""
-    paths = dm.scene.extra_paths.get(REFERENCE_T_KEY)
-    if not paths or paths[idx] is None:
-        return None
-    arr = read_depth(paths[idx])  # [h, w] float32 (any 2-D map reader)
-    if arr.shape != size:
-        arr = cv2.resize(arr, (size[1], size[0]), interpolation=cv2.INTER_AREA)
-    return torch.from_numpy(np.ascontiguousarray(arr))[..., None].to(dm.device)  # [H, W, 1]
-
-
 @dataclass
 class ViewRender:
     """What a per-view callback receives (e.g. to write side-by-side images)."""
@@ -122,6 +112,8 @@ class ViewRender:
     outputs: dict[str, Tensor]
     hazy_input: Tensor | None  # [H, W, 3] the hazy photo, None where the view's input is clean
     reference: Tensor | None  # [H, W, 3] haze-free reference
+    true_transmittance: Tensor | None = None  # [H, W, 1] the dataset's, where it has one
+    true_scattering: Tensor | None = None  # [H, W, 3] the dataset's, where it has one
 
 
 @torch.no_grad()
@@ -141,6 +133,7 @@ def evaluate(
     restore_rows: list[dict[str, float | None]] = []
     recon_rows: list[dict[str, float | None]] = []
     binned = BinAccumulator()
+    recovery = MediumAccumulator()
     bin_source: str | None = None
     per_view: list[dict[str, Any]] = []
     for idx in indices:
@@ -155,12 +148,20 @@ def evaluate(
             if trans is not None:
                 bin_source = source
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
+        true_t = true_s = None
+        if medium:
+            size = tuple(out["transmittance"].shape[:2])
+            true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
+            true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)  # type: ignore[arg-type]
+            if true_t is not None:
+                model_t, model_s = out["transmittance"], out["scattering"]
+                row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
         if hazy_in is not None:
             row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
             recon_rows.append(row["reconstruction"])
         per_view.append(row)
         if on_view is not None:
-            on_view(ViewRender(idx, names[idx], out, hazy_in, clean_ref))
+            on_view(ViewRender(idx, names[idx], out, hazy_in, clean_ref, true_t, true_s))
     recon = _mean(recon_rows)
     if recon is not None:
         recon["composite"] = medium
@@ -176,6 +177,7 @@ def evaluate(
             "bins": {"high": "T > 0.7", "mid": "0.4 < T <= 0.7", "low": "T <= 0.4"},
             **binned.result(),
         },
+        "medium": recovery.result(),
         "per_view": per_view,
     }
 
@@ -189,7 +191,7 @@ def _bin_transmittance(
         return out["transmittance"], "model"
     if bins in ("auto", "reference"):
         size = tuple(out["clean"].shape[:2])
-        ref = reference_transmittance(dm, idx, size)  # type: ignore[arg-type]
+        ref = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
         if ref is not None:
             return ref, "reference"
     return None, None

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from pipelines.engine.evaluate import BINS, ViewRender
+from pipelines.engine.medium_recovery import T_BINS
 from pipelines.evaluation.visualize import to_png
 
 PANEL_LABEL_HEIGHT = 16
@@ -53,6 +54,7 @@ def markdown_report(report: dict[str, Any]) -> str:
                 f"| {name} ({binned['bins'][name]}) | {100 * b['fraction']:.1f} % | {_fmt(b['psnr'], 2)} | "
                 f"{_fmt(b['ssim'])} |"
             )
+    lines += _medium_lines(report.get("medium"), report["per_view"])
     lines += [
         "",
         "| view | restoration PSNR / SSIM / LPIPS | reconstruction PSNR / SSIM / LPIPS |",
@@ -67,6 +69,34 @@ def markdown_report(report: dict[str, Any]) -> str:
             )
         lines.append(f"| {row['name']} | {cells[0]} | {cells[1]} |")
     return "\n".join(lines) + "\n"
+
+
+def _medium_lines(med: dict[str, Any] | None, per_view: list[dict[str, Any]]) -> list[str]:
+    """The medium-recovery section (only where the dataset holds the true maps)."""
+    if med is None:
+        return []
+    by_bin = med["t_mae_by_true_t"]
+    lines = [
+        "",
+        "Medium recovery against the dataset's true maps (J inverted from the hazy input with T and S):",
+        "",
+        "| T MAE | S MAE | T MAE high / mid / low true T | J PSNR, model T and S | J PSNR, true T and S |",
+        "|---|---|---|---|---|",
+        f"| {_fmt(med['t_mae'])} | {_fmt(med['s_mae'])} | "
+        f"{' / '.join(_fmt(by_bin[name]) for name, _, _ in T_BINS)} | {_fmt(med['inverted_psnr'], 2)} | "
+        f"{_fmt(med['true_inverted_psnr'], 2)} |",
+        "",
+        "| view | T MAE | S MAE | J PSNR model / true |",
+        "|---|---|---|---|",
+    ]
+    for row in per_view:
+        m = row.get("medium")
+        if m is not None:
+            lines.append(
+                f"| {row['name']} | {_fmt(m['t_mae'])} | {_fmt(m['s_mae'])} | "
+                f"{_fmt(m.get('inverted_psnr'), 2)} / {_fmt(m.get('true_inverted_psnr'), 2)} |"
+            )
+    return lines
 
 
 def _labelled(img: np.ndarray, label: str) -> np.ndarray:
@@ -97,3 +127,25 @@ def side_by_side(view: ViewRender) -> np.ndarray:
         _labelled(to_png(out["transmittance"], (0.0, 1.0)), "transmittance"),
     ]
     return np.concatenate(panels, axis=1)
+
+
+def medium_panels(view: ViewRender) -> np.ndarray | None:
+    """model T | true T | model S | true S, captioned (None where the view has no true T or the
+    method no medium); [H + 16, 4 W, 3] uint8 RGB, a missing true S a grey panel."""
+    out = view.outputs
+    if view.true_transmittance is None or "scattering" not in out:
+        return None
+    true_s = view.true_scattering
+    grey = np.full_like(to_png(out["scattering"]), 128)
+    return np.concatenate(
+        [
+            _labelled(to_png(out["transmittance"], (0.0, 1.0)), "model T"),
+            _labelled(to_png(view.true_transmittance, (0.0, 1.0)), "true T"),
+            _labelled(to_png(out["scattering"]), "model S"),
+            _labelled(
+                to_png(true_s) if true_s is not None else grey,
+                "true S" if true_s is not None else "no true S",
+            ),
+        ],
+        axis=1,
+    )

@@ -194,6 +194,7 @@ class AblationRunner:
             "restoration": report.get("restoration"),
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),
+            "medium": report.get("medium"),
         }
 
     def state_path(self, job: Job) -> Path:

@@ -12,7 +12,7 @@ from pipelines.experiments.ablation import FAMILIES, VARIANTS, paper_claims
 
 CSV_FIELDS = (
     "scene", "variant", "method", "status", "restoration_psnr", "restoration_ssim", "restoration_lpips",
-    "reconstruction_psnr", "low_T_psnr", "gaussians", "train_seconds", "wall_seconds",
+    "reconstruction_psnr", "low_T_psnr", "t_mae", "s_mae", "gaussians", "train_seconds", "wall_seconds",
 )  # fmt: skip
 
 
@@ -54,6 +54,8 @@ def variant_means(results: list[dict[str, Any]], scenes: list[str]) -> dict[str,
             "ssim": mean_finite([nested(r, "restoration", "ssim") for r in rows]),
             "lpips": mean_finite([nested(r, "restoration", "lpips") for r in rows]),
             "low_T_psnr": mean_finite([nested(r, "binned", "low", "psnr") for r in rows]),
+            "t_mae": mean_finite([nested(r, "medium", "t_mae") for r in rows]),
+            "s_mae": mean_finite([nested(r, "medium", "s_mae") for r in rows]),
             "wall_seconds": mean_finite([r.get("wall_seconds") for r in rows]),
             "scenes": len(rows),
         }
@@ -66,7 +68,7 @@ def markdown_table(
     """One table per family: restoration PSNR per scene, then means of PSNR / SSIM / LPIPS / time."""
     table = by_key(results)
     means = variant_means(results, scenes)
-    head = ["variant", *scenes, "mean PSNR", "SSIM", "LPIPS", "PSNR T<=0.4", "time (s)"]
+    head = ["variant", *scenes, "mean PSNR", "SSIM", "LPIPS", "PSNR T<=0.4", "T MAE", "S MAE", "time (s)"]
     lines: list[str] = []
     for fam in families:
         lines += [f"### {fam}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -90,7 +92,8 @@ def markdown_table(
             lines.append(
                 "| " + " | ".join([
                     VARIANTS[name].label or name, *per_scene, fmt_number(m.get("psnr")), fmt_number(m.get("ssim"), 3),
-                    fmt_number(m.get("lpips"), 3), fmt_number(m.get("low_T_psnr")), fmt_number(m.get("wall_seconds"), 0),
+                    fmt_number(m.get("lpips"), 3), fmt_number(m.get("low_T_psnr")), fmt_number(m.get("t_mae"), 3),
+                    fmt_number(m.get("s_mae"), 3), fmt_number(m.get("wall_seconds"), 0),
                 ]) + " |"
             )  # fmt: skip
         lines.append("")
@@ -137,6 +140,7 @@ def csv_text(results: list[dict[str, Any]]) -> str:
             "restoration_psnr": nested(r, "restoration", "psnr"), "restoration_ssim": nested(r, "restoration", "ssim"),
             "restoration_lpips": nested(r, "restoration", "lpips"),
             "reconstruction_psnr": nested(r, "reconstruction", "psnr"), "low_T_psnr": nested(r, "binned", "low", "psnr"),
+            "t_mae": nested(r, "medium", "t_mae"), "s_mae": nested(r, "medium", "s_mae"),
             "gaussians": r.get("gaussians"), "train_seconds": r.get("train_seconds"),
             "wall_seconds": r.get("wall_seconds"),
         })  # fmt: skip

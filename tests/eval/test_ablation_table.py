@@ -40,3 +40,17 @@ def test_verdicts_with_a_noise_band():
     assert "| vanilla 3DGS | failed | - |" in md
     assert csv_text(results).count("\n") == len(results) + 1
     assert set(FAMILIES) == {"representation", "field", "schedule", "losses", "baselines"}
+
+
+def test_tables_carry_the_medium_errors():
+    results = [
+        {**_result("a", "full", 19.0), "medium": {"t_mae": 0.08, "s_mae": 0.05}},
+        {**_result("b", "full", 20.0), "medium": {"t_mae": 0.06, "s_mae": 0.03}},
+        _result("a", "vanilla-gs", 9.0),  # no medium: no medium numbers
+    ]
+    means = variant_means(results, ["a", "b"])
+    assert means["full"]["t_mae"] == 0.07 and means["full"]["s_mae"] == 0.04
+    assert means["vanilla-gs"]["t_mae"] is None
+    md = markdown_table(results, ["a", "b"], ["schedule", "baselines"], {})
+    assert "| T MAE | S MAE |" in md and "| 19.50 | 0.500 | - | - | 0.070 | 0.040 |" in md
+    assert "t_mae,s_mae" in csv_text(results).splitlines()[0]

@@ -37,9 +37,16 @@ def test_td_eval_writes_json_markdown_and_side_by_side(tri_run, need_lpips, tmp_
     md = out.with_suffix(".md").read_text()
     assert "| restoration |" in md and "| low (T <= 0.4) |" in md
     images = sorted((tmp_path / "res" / "tri_images").glob("*.png"))
-    assert len(images) == 2
-    img = cv2.imread(str(images[0]))
+    views = [p for p in images if not p.stem.endswith("_medium")]
+    assert len(views) == 2 and [p.stem for p in images if p not in views] == [
+        f"{p.stem}_medium" for p in views
+    ]
+    img = cv2.imread(str(views[0]))
     assert img.shape == (36 + 16, 4 * 48, 3)  # caption band; hazy | clean | reference | transmittance
+    assert cv2.imread(str(images[1])).shape == img.shape  # model T | true T | model S | true S
+    med = report["medium"]  # the generated scene carries its true T and S
+    assert med["views"] == 2 and 0 <= med["t_mae"] <= 1 and 0 <= med["s_mae"] <= 1
+    assert med["true_inverted_psnr"] > 30 and "Medium recovery" in md and "| T MAE |" in md
 
 
 def test_td_eval_default_path_and_plain_method(plain_run):

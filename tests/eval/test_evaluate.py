@@ -14,7 +14,8 @@ from components.data.images import read_depth
 from components.data.loader import load_scene
 from pipelines.engine.contract import Pipeline, StepResult
 from pipelines.engine.datamanager import DataManager
-from pipelines.engine.evaluate import REFERENCE_T_KEY, evaluate, evaluate_split
+from pipelines.engine.evaluate import evaluate, evaluate_split
+from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, T_BINS, reference_map
 
 DELTA = 0.1
 """Error added to the clean render inside the low-visibility third of each view."""
@@ -55,7 +56,28 @@ class ScriptedPipeline(Pipeline):
         T[:, 2 * third :] = 0.2
         clean = ref.clone()
         clean[:, 2 * third :] = (clean[:, 2 * third :] + DELTA).clamp(max=1.0)
-        return {"clean": clean, "hazy": self.dm.image(idx), "transmittance": T}
+        return {
+            "clean": clean,
+            "hazy": self.dm.image(idx),
+            "transmittance": T,
+            "scattering": torch.zeros(H, W, 3),
+        }
+
+
+class OraclePipeline(ScriptedPipeline):
+    """Renders the dataset's true T and S, T shifted down by ``t_shift`` and S up by ``s_shift``."""
+
+    def __init__(self, dm: DataManager, t_shift: float = 0.0, s_shift: float = 0.0) -> None:
+        super().__init__(dm)
+        self.t_shift, self.s_shift = t_shift, s_shift
+
+    def render(self, camera, step=None):
+        out = super().render(camera, step)
+        idx = self._index(camera)
+        size = tuple(out["clean"].shape[:2])
+        out["transmittance"] = reference_map(self.dm, REFERENCE_T_KEY, idx, size) - self.t_shift
+        out["scattering"] = reference_map(self.dm, REFERENCE_S_KEY, idx, size) + self.s_shift
+        return out
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +87,7 @@ def dm(eval_scene) -> DataManager:
 
 def test_stable_keys_and_perfect_protocols(dm):
     report = evaluate(ScriptedPipeline(dm), dm, "test")
-    assert set(report) >= {"split", "views", "restoration", "reconstruction", "binned", "per_view"}
+    assert set(report) >= {"split", "views", "restoration", "reconstruction", "binned", "medium", "per_view"}
     assert report["views"] == len(dm.scene.test_indices) == len(report["per_view"]) >= 2
     assert set(report["restoration"]) >= {"psnr", "ssim", "lpips"}
     rec = report["reconstruction"]
@@ -118,3 +140,30 @@ def test_quick_numbers_match_the_full_protocol(dm):
     full = evaluate(ScriptedPipeline(dm), dm, "test")
     assert quick["restoration_psnr"] == pytest.approx(full["restoration"]["psnr"])
     assert quick["reconstruction_ssim"] == pytest.approx(full["reconstruction"]["ssim"])
+
+
+def test_medium_recovery_of_the_true_maps_is_exact(dm):
+    med = evaluate(OraclePipeline(dm), dm, "test")["medium"]
+    assert med["views"] == len(dm.scene.test_indices)
+    assert med["t_mae"] == 0.0 and med["s_mae"] == 0.0
+    assert all(v in (0.0, None) for v in med["t_mae_by_true_t"].values())
+    assert med["inverted_psnr"] == med["true_inverted_psnr"] > 30.0  # the data allow a near-perfect answer
+
+
+def test_medium_recovery_measures_known_errors(dm):
+    report = evaluate(OraclePipeline(dm, t_shift=0.05, s_shift=0.02), dm, "test")
+    med = report["medium"]
+    assert med["t_mae"] == pytest.approx(0.05, abs=1e-5) and med["s_mae"] == pytest.approx(0.02, abs=1e-5)
+    assert [k for k, v in med["t_mae_by_true_t"].items() if v is not None]  # some bin has pixels
+    for v in med["t_mae_by_true_t"].values():
+        assert v is None or v == pytest.approx(0.05, abs=1e-5)
+    assert med["inverted_psnr"] < med["true_inverted_psnr"]
+    assert set(report["per_view"][0]["medium"]) >= {"t_mae", "s_mae", "inverted_psnr", "true_inverted_psnr"}
+    assert [b[0] for b in T_BINS] == list(med["t_mae_by_true_t"])
+
+
+def test_no_medium_or_no_true_maps_means_no_medium_numbers(dm):
+    assert evaluate(ScriptedPipeline(dm, medium=False), dm, "test")["medium"] is None
+    bare = DataManager(load_scene(DataConfig(data=dm.scene.root)), torch.device("cpu"))
+    bare.scene.extra_paths.pop(REFERENCE_T_KEY)
+    assert evaluate(ScriptedPipeline(bare), bare, "test")["medium"] is None

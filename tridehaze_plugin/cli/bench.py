@@ -21,11 +21,10 @@ from __future__ import annotations
 import csv
 import io
 import json
-import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import torch
 import tyro
@@ -34,7 +33,8 @@ from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
 from pipelines.experiments.tables import fmt_number, mean_finite, nested
 from pipelines.experiments.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
-from tridehaze_plugin.cli.common import run_cli
+from tridehaze_plugin.cli.common import run_cli, split_train_args
+from tridehaze_plugin.config import SEED_RANGE, check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -59,7 +59,7 @@ class TradeoffArgs:
     """Runs in parallel (separate processes)."""
     threads: int = 1
     """Torch threads per run."""
-    seed: int = 42
+    seed: Annotated[int, SEED_RANGE] = 42
     """Seed of every run."""
     lpips: Literal["auto", "on", "off"] = "auto"
     """LPIPS in td-eval."""
@@ -84,6 +84,8 @@ def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]
             "psnr": mean_finite([nested(r, "restoration", "psnr") for r in rs]),
             "ssim": mean_finite([nested(r, "restoration", "ssim") for r in rs]),
             "lpips": mean_finite([nested(r, "restoration", "lpips") for r in rs]),
+            "t_mae": mean_finite([nested(r, "medium", "t_mae") for r in rs]),
+            "s_mae": mean_finite([nested(r, "medium", "s_mae") for r in rs]),
             **{f"psnr_{s}": by_scene.get(s) for s in scenes},
         })  # fmt: skip
     front = set(pareto_front(rows))
@@ -98,16 +100,16 @@ def summarize(results: list[dict[str, Any]], names: list[str], scenes: list[str]
 
 def markdown(rows: list[dict[str, Any]], scenes: list[str]) -> str:
     lines = [
-        "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | front (PSNR / LPIPS) | "
-        + " | ".join(f"PSNR {s}" for s in scenes)
-        + " |",
-        "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(scenes),
+        "| config | steps | time (s) | CPU (s) | peak MB | Gaussians | PSNR | SSIM | LPIPS | T MAE | S MAE | "
+        "front (PSNR / LPIPS) | " + " | ".join(f"PSNR {s}" for s in scenes) + " |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(scenes),
     ]
     for r in sorted(rows, key=lambda r: r["wall_seconds"] or 1e18):
         lines.append(
             f"| {r['name']} | {r['steps'] or '-'} | {fmt_number(r['wall_seconds'], 0)} | {fmt_number(r['cpu_seconds'], 0)} | "
             f"{fmt_number(r['peak_rss_mb'], 0)} | {fmt_number(r['gaussians'], 0)} | {fmt_number(r['psnr'], 2)} | {fmt_number(r['ssim'], 3)} | "
-            f"{fmt_number(r['lpips'], 3)} | {'**PSNR**' if r['pareto'] else ''}"
+            f"{fmt_number(r['lpips'], 3)} | {fmt_number(r['t_mae'], 3)} | {fmt_number(r['s_mae'], 3)} | "
+            f"{'**PSNR**' if r['pareto'] else ''}"
             f"{' / ' if r['pareto'] and r['pareto_lpips'] else ''}{'**LPIPS**' if r['pareto_lpips'] else ''} | "
             + " | ".join(fmt_number(r.get(f"psnr_{s}"), 2) for s in scenes)
             + " |"
@@ -167,7 +169,7 @@ def tradeoff(args: TradeoffArgs) -> None:
         raise ConfigError(f"--knobs: {e}") from None
     opts = RunnerOptions(
         output_dir=args.output_dir, max_steps=args.base_steps, seed=args.seed, threads=args.threads, jobs=args.jobs,
-        bins="none", lpips=args.lpips, extra=tuple(shlex.split(args.train_args)),
+        bins="none", lpips=args.lpips, extra=split_train_args(args.train_args),
     )  # fmt: skip
     runner = AblationRunner(opts)
     jobs = [Job(s, v) for s in args.scenes for v in variants]
@@ -329,6 +331,7 @@ def main(argv: list[str] | None = None) -> None:
         args=sys.argv[1:] if argv is None else argv,
         prog="td-bench",
     )
+    check_numbers(args)
     if isinstance(args, ProbeArgs):
         probe(args)
     else:

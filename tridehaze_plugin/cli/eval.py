@@ -26,9 +26,9 @@ from pipelines.engine.device import resolve_device
 from pipelines.engine.evaluate import BinSource, ViewRender, evaluate
 from pipelines.engine.run_config import write_text_atomic
 from pipelines.engine.run_loader import load_run
-from pipelines.evaluation.report import markdown_report, side_by_side
+from pipelines.evaluation.report import markdown_report, medium_panels, side_by_side
 from tridehaze_plugin.cli.common import run_cli
-from tridehaze_plugin.config import check_finite
+from tridehaze_plugin.config import check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -74,7 +74,7 @@ def _lpips(mode: str) -> tuple[object | None, dict[str, object]]:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(EvalArgs, args=sys.argv[1:] if argv is None else argv, prog="td-eval")
-    check_finite(args)
+    check_numbers(args)
     out_json = args.output_path or args.load_config.parent / "eval" / f"{args.split}.json"
     if out_json.suffix.lower() != ".json":
         raise ConfigError(
@@ -103,6 +103,9 @@ def main(argv: list[str] | None = None) -> None:
 
     def save_view(view: ViewRender) -> None:
         write_image_atomic(image_dir / f"{Path(view.name).stem}.png", side_by_side(view))
+        medium = medium_panels(view)
+        if medium is not None:
+            write_image_atomic(image_dir / f"{Path(view.name).stem}_medium.png", medium)
 
     t0 = time.perf_counter()
     with torch.no_grad():
