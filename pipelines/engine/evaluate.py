@@ -148,14 +148,10 @@ def evaluate(
             if trans is not None:
                 bin_source = source
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
-        true_t = true_s = None
-        if medium:
-            size = tuple(out["transmittance"].shape[:2])
-            true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
-            true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)  # type: ignore[arg-type]
-            if true_t is not None:
-                model_t, model_s = out["transmittance"], out["scattering"]
-                row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
+        true_t, true_s = _true_medium(dm, idx, out) if medium else (None, None)
+        if true_t is not None:
+            model_t, model_s = out["transmittance"], out["scattering"]
+            row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
         if hazy_in is not None:
             row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
             recon_rows.append(row["reconstruction"])
@@ -180,6 +176,15 @@ def evaluate(
         "medium": recovery.result(),
         "per_view": per_view,
     }
+
+
+def _true_medium(dm: DataManager, idx: int, out: dict[str, Tensor]) -> tuple[Tensor | None, Tensor | None]:
+    """The dataset's true T [H, W, 1] and S [H, W, 3] of view ``idx`` at the render's size (None
+    where it has none)."""
+    size = tuple(out["transmittance"].shape[:2])
+    true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
+    true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)  # type: ignore[arg-type]
+    return true_t, true_s
 
 
 def _bin_transmittance(
