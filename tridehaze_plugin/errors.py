@@ -26,6 +26,12 @@ def shown(value: Any) -> str:
     return _REPR.repr(value)
 
 
+def first_few(names: list[str], n: int = 3) -> str:
+    """The first ``n`` names, comma-separated, with ``...`` when there are more: a message names
+    examples, not all of a long list."""
+    return ", ".join(names[:n]) + (", ..." if len(names) > n else "")
+
+
 class UserError(Exception):
     """An error caused by input the user controls; the message says what, where and what to do."""
 

@@ -30,7 +30,7 @@ from components.data.sanity import (
     check_seed_visibility,
 )
 from components.data.scene import DataWarning, Frame, ParsedScene, SceneData, SceneTransform
-from tridehaze_plugin.errors import DataError
+from tridehaze_plugin.errors import DataError, first_few
 from tridehaze_plugin.registry import REGISTRY
 
 ROTATION_TOL = 1e-3
@@ -221,7 +221,7 @@ def validate_frames(parsed: ParsedScene, root: Path, *, skip_missing: bool = Fal
     _check_unique_names(frames, root)
     missing = [f for f in frames if not f.image_path.is_file()]
     if missing:
-        listed = ", ".join(f.name for f in missing[:3]) + (", ..." if len(missing) > 3 else "")
+        listed = first_few([f.name for f in missing])
         if not skip_missing:
             raise DataError(
                 f"{len(missing)} of {len(frames)} listed image(s) are missing: {listed}",

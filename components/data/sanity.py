@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from components.data.scene import DataWarning, Frame
-from tridehaze_plugin.errors import DataError
+from tridehaze_plugin.errors import DataError, first_few
 
 MIN_IMAGE_SIDE = 8
 """Smallest image side (pixels) training accepts after ``--downscale``: below it the SSIM window,
@@ -68,9 +68,8 @@ def check_principal_points(frames: list[Frame], root: Path) -> None:
     """Warn about principal points outside their image (possible for crops, usually a unit mix-up)."""
     off = [f.name for f in frames if not (0.0 <= f.cx <= f.width and 0.0 <= f.cy <= f.height)]
     if off:
-        listed = ", ".join(off[:3]) + (", ..." if len(off) > 3 else "")
         warnings.warn(
-            f"{len(off)} view(s) have their principal point outside the image ({listed}; {root})",
+            f"{len(off)} view(s) have their principal point outside the image ({first_few(off)}; {root})",
             DataWarning,
             stacklevel=3,
         )
@@ -111,9 +110,8 @@ def check_seed_visibility(
         )
     blind = [n for n, s in zip(names, seen, strict=True) if not s]
     if blind:
-        listed = ", ".join(blind[:3]) + (", ..." if len(blind) > 3 else "")
         warnings.warn(
-            f"{len(blind)} of {len(names)} view(s) see none of the seed points ({listed}; {root})",
+            f"{len(blind)} of {len(names)} view(s) see none of the seed points ({first_few(blind)}; {root})",
             DataWarning,
             stacklevel=3,
         )

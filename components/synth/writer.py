@@ -28,7 +28,7 @@ from components.data.images import (
     write_bytes_atomic,
     write_image_atomic,
 )
-from tridehaze_plugin.errors import UserError
+from tridehaze_plugin.errors import UserError, first_few
 
 GL_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 """OpenCV <-> OpenGL camera axes (self-inverse): nerfstudio's ``transform_matrix`` is OpenGL."""
@@ -70,9 +70,9 @@ def _check_replaceable(out: Path, tool: str) -> None:
     listed = {str(f) for f in listed} if isinstance(listed, list) else set()
     foreign = sorted(set(_files(out)) - listed - {MANIFEST})
     if foreign:
-        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
         raise UserError(
-            f"--overwrite refused: the folder holds {len(foreign)} file(s) {tool} did not write ({shown})",
+            f"--overwrite refused: the folder holds {len(foreign)} file(s) {tool} did not write "
+            f"({first_few(foreign)})",
             where=str(out),
             fix="move them away first, or " + fix,
         )
