@@ -34,21 +34,20 @@ from torch.nn import functional as F
 
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
-from tridehaze_plugin.config import Positive, Range
-from tridehaze_plugin.errors import ConfigError
+from tridehaze_plugin.config import Positive, Range, check_numbers
 
 
 @dataclass
 class CompositeConfig:
     """How the medium is integrated along each pixel's ray."""
 
-    num_samples: int = 16
+    num_samples: Annotated[int, Range(1)] = 16
     """K: medium samples per ray between the camera and the surface (far bound for background)."""
-    ray_stride: int | None = None
+    ray_stride: Annotated[int | None, Range(1)] = None
     """The medium is marched along one ray per stride x stride pixel block (1 = every pixel);
     None: the stride that gives about ``coarse_rays`` rays, so the medium's cost does not grow with
     the image size (8 at 320x240, 3 at 128x96)."""
-    coarse_rays: int = 1200
+    coarse_rays: Annotated[int, Range(1)] = 1200
     """Target number of marched rays per view when ``ray_stride`` is None."""
     far: Annotated[float | None, Positive] = None
     """Far bound (scene units of camera z) for background pixels; None: the diagonal of the
@@ -59,10 +58,8 @@ class CompositeConfig:
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
-        for name, value in (("num-samples", self.num_samples), ("ray-stride", self.ray_stride),
-                            ("coarse-rays", self.coarse_rays)):  # fmt: skip
-            if value is not None and value < 1:
-                raise ConfigError(f"{prefix}{name} must be >= 1, got {value}")
+        """The declared ranges, also for a config built in code rather than parsed."""
+        check_numbers(self, prefix.removeprefix("--"))
 
 
 @dataclass

@@ -13,7 +13,7 @@ from pipelines.engine.contract import PipelineConfig
 from pipelines.engine.device import check_device_name
 from pipelines.engine.early_stop import EarlyStopConfig
 from pipelines.engine.optimizers import OptimizerConfig
-from tridehaze_plugin.config import SEED_RANGE
+from tridehaze_plugin.config import SEED_RANGE, Range
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -80,7 +80,7 @@ class TrainerConfig:
     """Runs are written to OUTPUT_DIR/<scene>/<method>/<timestamp>/."""
     timestamp: str | None = None
     """Run folder name; default: the current local time (YYYY-mm-dd_HHMMSS)."""
-    max_steps: int = 3000
+    max_steps: Annotated[int, Range(1)] = 3000
     """Number of optimisation steps."""
     seed: Annotated[int, SEED_RANGE] = 42
     """Random seed for initialisation, view order and anything stochastic."""
@@ -91,11 +91,11 @@ class TrainerConfig:
     """Options of the live viewer (used with --vis viewer or auto)."""
     device: str = "auto"
     """Torch device: ``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda`` or ``cuda:N``."""
-    threads: int | None = None
+    threads: Annotated[int | None, Range(1)] = None
     """CPU threads for torch (default: all cores). Oversubscription costs 2-5x on shared machines."""
-    steps_per_log: int = 10
+    steps_per_log: Annotated[int, Range(1)] = 10
     """Write a line of metrics to logs/metrics.jsonl every N steps."""
-    steps_per_save: int = 1000
+    steps_per_save: Annotated[int, Range(1)] = 1000
     """Write a checkpoint every N steps (and always at the end)."""
     minutes_per_save: float = 5.0
     """Also write one when this many minutes have passed since the last (the first after a fifth
@@ -107,17 +107,13 @@ class TrainerConfig:
     """Stop before ``--max-steps`` when the held-out views' loss plateaus (``--early-stop.enabled``)."""
 
     def check_values(self) -> None:
-        """Reject values that cannot work, naming the flag; called right after parsing."""
-        _positive("--max-steps", self.max_steps)
-        _positive("--steps-per-log", self.steps_per_log)
-        _positive("--steps-per-save", self.steps_per_save)
+        """Reject values that cannot work, naming the flag; called right after parsing (after
+        :func:`check_numbers`, which covers the fields' declared ranges)."""
         if not 0 <= self.minutes_per_save <= 1e6:
             raise ConfigError(f"--minutes-per-save must be in [0, 1e6], got {self.minutes_per_save}")
         _positive("--downscale", self.dataset.downscale)
         if self.dataset.test_every < 0:
             raise ConfigError(f"--test-every must be >= 0, got {self.dataset.test_every}")
-        if self.threads is not None:
-            _positive("--threads", self.threads)
         check_device_name(self.device)
         if self.timestamp is not None:
             check_folder_name("--timestamp", self.timestamp)

@@ -44,7 +44,7 @@ from pipelines.tridehaze.priors import (
 )
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.warmup import warmup_depths
-from tridehaze_plugin.config import RegistryChoice
+from tridehaze_plugin.config import NonNegative, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
@@ -82,16 +82,16 @@ class GaussianPipelineConfig(PipelineConfig):
     """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
     channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
     every training view has one, else SfM when the scene has seed points, else warmup."""
-    warmup_steps: int = 300
+    warmup_steps: Annotated[int, NonNegative] = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
-    lambda_depth: float = 0.0
+    lambda_depth: Annotated[float, NonNegative] = 0.0
     """Weight of the depth loss (1 - Pearson correlation + lambda_smooth * smoothness); 0 = off."""
-    lambda_smooth: float = 0.1
+    lambda_smooth: Annotated[float, NonNegative] = 0.1
     """Weight of edge-aware depth smoothness inside the depth loss; 0 = off."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
-    lambda_dcp: float = 0.0
+    lambda_dcp: Annotated[float, NonNegative] = 0.0
     """Weight of the dark-channel transmittance loss ||T - T_dcp||^2 (Stage I only); 0 = off."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
@@ -115,14 +115,6 @@ class GaussianPipelineConfig(PipelineConfig):
             raise ConfigError(f"--pipeline.background must be three values in [0, 1], got {self.background}")
         if not 0.0 < self.t_min <= 1.0:
             raise ConfigError(f"--pipeline.t-min must be in (0, 1], got {self.t_min}")
-        for flag, v in (
-            ("--pipeline.lambda-depth", self.lambda_depth),
-            ("--pipeline.lambda-smooth", self.lambda_smooth),
-            ("--pipeline.lambda-dcp", self.lambda_dcp),
-            ("--pipeline.warmup-steps", self.warmup_steps),
-        ):
-            if v < 0:
-                raise ConfigError(f"{flag} must be >= 0, got {v}")
         for sub in (self.loss, self.composite, self.medium, self.densify, self.rasterizer):
             sub.check_values()
         if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
