@@ -53,6 +53,15 @@ TRAIN = ("tri-dehaze", "--output-dir", "{fx}/out", "--max-steps", "2", "--thread
 EVAL = ("--lpips", "off")  # LPIPS is not the subject (see the xfail case below for why this matters)
 NO_LPIPS = {"TRIDEHAZE_LPIPS_WEIGHTS": "/missing/alexnet.ckpt"}
 
+
+def _flag_cases(*rows: tuple[str, str, str]) -> dict[str, Case]:
+    """td-train on the good scene with one flag set to a bad value: (flag, value, expected start)."""
+    return {
+        f"train: {flag} {value}": Case("train", (*TRAIN, "--data", "{scene}", flag, value), expect)
+        for flag, value, expect in rows
+    }
+
+
 CASES: dict[str, Case] = {
     # ------------------------------------------------------------------------------ td-train
     "train: missing --data folder": Case(
@@ -138,19 +147,16 @@ CASES: dict[str, Case] = {
         "train", ("--load-config", "{fx}/unsafe/config.yml"), "config file is not valid YAML"
     ),
     # ------------------------------------------ flag values that used to reach the code (one each)
-    **{
-        f"train: {flag} {value}": Case("train", (*TRAIN, "--data", "{scene}", flag, value), expect)
-        for flag, value, expect in (
-            ("--downscale", "1000", "--downscale 1000 makes frame"),
-            ("--pipeline.medium.resolution", "0", "--pipeline.medium.resolution must be >= 2"),
-            ("--pipeline.loss.ssim-window", "4", "--pipeline.loss.ssim-window must be an odd integer"),
-            ("--pipeline.loss.ssim-window", "1", "--pipeline.loss.ssim-window must be an odd integer"),
-            ("--pipeline.rasterizer.tile-size", "0", "--pipeline.rasterizer.tile-size must be >= 1"),
-            ("--pipeline.model.sh-degree", "9", "--pipeline.model.sh-degree must be >= 0 and <= 3"),
-            ("--seed", str(2**65), "--seed must be >= 0 and <= 4294967295"),
-            ("--seed", "-1", "--seed must be >= 0"),
-        )
-    },
+    **_flag_cases(
+        ("--downscale", "1000", "--downscale 1000 makes frame"),
+        ("--pipeline.medium.resolution", "0", "--pipeline.medium.resolution must be >= 2"),
+        ("--pipeline.loss.ssim-window", "4", "--pipeline.loss.ssim-window must be an odd integer"),
+        ("--pipeline.loss.ssim-window", "1", "--pipeline.loss.ssim-window must be an odd integer"),
+        ("--pipeline.rasterizer.tile-size", "0", "--pipeline.rasterizer.tile-size must be >= 1"),
+        ("--pipeline.model.sh-degree", "9", "--pipeline.model.sh-degree must be >= 0 and <= 3"),
+        ("--seed", str(2**65), "--seed must be >= 0 and <= 4294967295"),
+        ("--seed", "-1", "--seed must be >= 0"),
+    ),
     "ablate: unterminated quote in --train-args": Case(
         "ablate",
         ("--scenes", "{scene}", "--output-dir", "{fx}/abl", '--train-args=--seed "7'),
@@ -163,17 +169,14 @@ CASES: dict[str, Case] = {
         "train", (*TRAIN, "--data", "{scene}", "--output-dir", "{fx}/" + "d" * 300), "File name too long"
     ),
     # ------------------------------------------------ values that used to be accepted silently
-    **{
-        f"train: {flag} {value}": Case("train", (*TRAIN, "--data", "{scene}", flag, value), expect)
-        for flag, value, expect in (
-            ("--pipeline.model.means-lr", "-1", "--pipeline.model.means-lr must be >= 0"),
-            ("--pipeline.medium.lr", "-0.1", "--pipeline.medium.lr must be >= 0"),
-            ("--pipeline.rasterizer.near-plane", "-1", "--pipeline.rasterizer.near-plane must be > 0"),
-            ("--pipeline.rasterizer.far-plane", "0.001", "--pipeline.rasterizer.far-plane (0.001) must be"),
-            ("--pipeline.composite.far", "-2", "--pipeline.composite.far must be > 0"),
-            ("--optimizer.means-lr-final-ratio", "-1", "--optimizer.means-lr-final-ratio must be > 0"),
-        )
-    },
+    **_flag_cases(
+        ("--pipeline.model.means-lr", "-1", "--pipeline.model.means-lr must be >= 0"),
+        ("--pipeline.medium.lr", "-0.1", "--pipeline.medium.lr must be >= 0"),
+        ("--pipeline.rasterizer.near-plane", "-1", "--pipeline.rasterizer.near-plane must be > 0"),
+        ("--pipeline.rasterizer.far-plane", "0.001", "--pipeline.rasterizer.far-plane (0.001) must be"),
+        ("--pipeline.composite.far", "-2", "--pipeline.composite.far must be > 0"),
+        ("--optimizer.means-lr-final-ratio", "-1", "--optimizer.means-lr-final-ratio must be > 0"),
+    ),
     **{
         f"train: dataset with {what}": Case("train", (*TRAIN, "--data", f"{{fx}}/{name}"), expect, warnings=w)
         for name, what, expect, w in (
