@@ -6,6 +6,8 @@
   with a medium (a haze-agnostic method's render *is* its reconstruction of the hazy input, so its
   plain render is compared with the input instead and flagged ``composite: false``), and only for
   views whose input is hazy (Blender-style test views are clean references).
+- **Baselines**: the same restoration scores for the hazy test photo itself and for the photo
+  dehazed on its own by the dark channel prior (``image_baselines``): what no 3D gives.
 - **Binned**: restoration PSNR / SSIM over pixels grouped by transmittance, High T > 0.7,
   Mid 0.4 < T <= 0.7, Low T <= 0.4 (the paper's bins). PSNR comes from the MSE pooled over all
   pixels of a bin across views (a bin that is tiny in one view does not dominate), SSIM is the
@@ -28,6 +30,7 @@ from torch import Tensor
 
 from pipelines.engine.contract import Pipeline
 from pipelines.engine.datamanager import DataManager
+from pipelines.engine.image_baselines import BASELINES, baseline_images
 from pipelines.engine.medium_recovery import (
     REFERENCE_S_KEY,
     REFERENCE_T_KEY,
@@ -131,6 +134,7 @@ def evaluate(
     names = dm.scene.names()
     medium = pipeline.composites_medium
     restore_rows: list[dict[str, float | None]] = []
+    baseline_rows: dict[str, list[dict[str, float | None]]] = {k: [] for k in BASELINES}
     recon_rows: list[dict[str, float | None]] = []
     binned = BinAccumulator()
     recovery = MediumAccumulator()
@@ -148,6 +152,8 @@ def evaluate(
             if trans is not None:
                 bin_source = source
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
+            if hazy_in is not None:
+                row["baselines"] = _baseline_scores(hazy_in, clean_ref, lpips_fn, baseline_rows)
         true_t, true_s = _true_medium(dm, idx, out) if medium else (None, None)
         if true_t is not None:
             model_t, model_s = out["transmittance"], out["scattering"]
@@ -174,8 +180,22 @@ def evaluate(
             **binned.result(),
         },
         "medium": recovery.result(),
+        "baselines": None
+        if not baseline_rows[BASELINES[0]]
+        else {k: _mean(v) for k, v in baseline_rows.items()},
         "per_view": per_view,
     }
+
+
+def _baseline_scores(
+    hazy: Tensor, reference: Tensor, lpips_fn: LpipsFn | None, rows: dict[str, list[dict[str, float | None]]]
+) -> dict[str, dict[str, float | None]]:
+    """One view's single-image baseline scores, each also appended to its list in ``rows``."""
+    view = {}
+    for name, image in baseline_images(hazy).items():
+        view[name] = _scores(image, reference, lpips_fn)
+        rows[name].append(view[name])
+    return view
 
 
 def _true_medium(dm: DataManager, idx: int, out: dict[str, Tensor]) -> tuple[Tensor | None, Tensor | None]:

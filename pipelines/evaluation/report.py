@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from pipelines.engine.evaluate import BINS, ViewRender
+from pipelines.engine.image_baselines import LABELS
 from pipelines.engine.medium_recovery import T_BINS
 from pipelines.evaluation.visualize import to_png
 
@@ -35,6 +36,12 @@ def markdown_report(report: dict[str, Any]) -> str:
         else:
             lines.append(
                 f"| {name} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | {r['views']} |"
+            )
+    for name, r in (report.get("baselines") or {}).items():
+        if r is not None:
+            lines.append(
+                f"| baseline: {LABELS[name]} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
+                f"{r['views']} |"
             )
     lp = report.get("lpips", {})
     if not lp.get("available", False):

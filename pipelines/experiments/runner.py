@@ -195,6 +195,7 @@ class AblationRunner:
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),
             "medium": report.get("medium"),
+            "baselines": report.get("baselines"),
         }
 
     def state_path(self, job: Job) -> Path:

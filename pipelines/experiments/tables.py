@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from pipelines.engine.image_baselines import LABELS as BASELINE_LABELS
 from pipelines.experiments.ablation import FAMILIES, VARIANTS, paper_claims
 
 CSV_FIELDS = (
@@ -62,21 +63,26 @@ def variant_means(results: list[dict[str, Any]], scenes: list[str]) -> dict[str,
     return out
 
 
+SceneBaselines = dict[str, dict[str, float]]
+"""Single-image baseline -> scene -> restoration PSNR (``image_baselines``: hazy input, 2D DCP)."""
+
+
 def markdown_table(
-    results: list[dict[str, Any]], scenes: list[str], families: list[str], hazy: dict[str, float]
+    results: list[dict[str, Any]], scenes: list[str], families: list[str], baselines: SceneBaselines
 ) -> str:
-    """One table per family: restoration PSNR per scene, then means of PSNR / SSIM / LPIPS / time."""
+    """One table per family: restoration PSNR per scene, then means of PSNR / SSIM / LPIPS / time;
+    the baselines family opens with the single-image baselines of the same test views."""
     table = by_key(results)
     means = variant_means(results, scenes)
     head = ["variant", *scenes, "mean PSNR", "SSIM", "LPIPS", "PSNR T<=0.4", "T MAE", "S MAE", "time (s)"]
     lines: list[str] = []
     for fam in families:
         lines += [f"### {fam}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        if fam == "baselines" and hazy:
+        for key, per_scene_psnr in baselines.items() if fam == "baselines" else ():
             cells = [
-                "hazy input",
-                *(fmt_number(hazy.get(s)) for s in scenes),
-                fmt_number(mean_finite(list(hazy.values()))),
+                BASELINE_LABELS[key],
+                *(fmt_number(per_scene_psnr.get(s)) for s in scenes),
+                fmt_number(mean_finite([per_scene_psnr.get(s) for s in scenes])),
             ]
             lines.append("| " + " | ".join(cells + ["-"] * (len(head) - len(cells))) + " |")
         for name in FAMILIES[fam]:
@@ -148,9 +154,14 @@ def csv_text(results: list[dict[str, Any]]) -> str:
 
 
 def bar_plot(
-    results: list[dict[str, Any]], scenes: list[str], families: list[str], hazy: dict[str, float], path: Path
+    results: list[dict[str, Any]],
+    scenes: list[str],
+    families: list[str],
+    baselines: SceneBaselines,
+    path: Path,
 ) -> None:
-    """One panel per family: mean restoration PSNR per variant (bars), each scene (dots)."""
+    """One panel per family: mean restoration PSNR per variant (bars), each scene (dots), the
+    single-image baselines as dashed lines."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -168,17 +179,20 @@ def bar_plot(
             pts = [nested(table.get((s, n), {}), "restoration", "psnr") for s in scenes]
             pts = [p for p in pts if p is not None]
             ax.scatter([i] * len(pts), pts, color="black", s=8, zorder=3)
-        if hazy:
-            ax.axhline(mean_finite(list(hazy.values())), color="gray", ls="--", lw=1, label="hazy input")
+        for (key, per_scene_psnr), color in zip(baselines.items(), ("gray", "tab:green"), strict=False):
+            level = mean_finite([per_scene_psnr.get(s) for s in scenes])
+            if level is not None:
+                ax.axhline(level, color=color, ls="--", lw=1, label=BASELINE_LABELS[key])
         ax.set_xticks(
             range(len(names)), [VARIANTS[n].name for n in names], rotation=40, ha="right", fontsize=8
         )
         ax.set_title(fam)
         ax.grid(axis="y", alpha=0.3)
     axes[0][0].set_ylabel("restoration PSNR (dB)")
-    lo = min([v["psnr"] for v in means.values() if v["psnr"] is not None] + list(hazy.values()) or [0.0])
+    levels = [v for per_scene_psnr in baselines.values() for v in per_scene_psnr.values()]
+    lo = min([v["psnr"] for v in means.values() if v["psnr"] is not None] + levels or [0.0])
     axes[0][0].set_ylim(max(lo - 2.0, 0.0), None)
-    if hazy:
+    if levels:
         axes[0][0].legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)

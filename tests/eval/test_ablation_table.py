@@ -35,8 +35,11 @@ def test_verdicts_with_a_noise_band():
     assert verdict == {("tgc-start", "no-tgc"): "yes", ("no-tgc", "full"): "tie"}
     _, rows = claims_table(results, ["a", "b"], ["schedule"], noise_db=0.0)
     assert {(r["worse"], r["better"]): r["agrees"] for r in rows}[("no-tgc", "full")] == "yes"
-    md = markdown_table(results, ["a", "b"], ["schedule", "baselines"], {"a": 11.0, "b": 12.0})
+    baselines = {"hazy_input": {"a": 11.0, "b": 12.0}, "dcp_2d": {"a": 15.0}}
+    md = markdown_table(results, ["a", "b"], ["schedule", "baselines"], baselines)
     assert "| no TGC | 18.00 | 20.00 | 19.00 |" in md and "| hazy input | 11.00 | 12.00 | 11.50 |" in md
+    assert "| single-image DCP (2D) | 15.00 | - | 15.00 |" in md  # a scene without the baseline shows -
+    assert "hazy input" not in markdown_table(results, ["a", "b"], ["schedule"], baselines)
     assert "| vanilla 3DGS | failed | - |" in md
     assert csv_text(results).count("\n") == len(results) + 1
     assert set(FAMILIES) == {"representation", "field", "schedule", "losses", "baselines"}

@@ -47,6 +47,12 @@ def test_td_eval_writes_json_markdown_and_side_by_side(tri_run, need_lpips, tmp_
     med = report["medium"]  # the generated scene carries its true T and S
     assert med["views"] == 2 and 0 <= med["t_mae"] <= 1 and 0 <= med["s_mae"] <= 1
     assert med["true_inverted_psnr"] > 30 and "Medium recovery" in md and "| T MAE |" in md
+    dcp = report["baselines"]["dcp_2d"]  # the 2D baseline on the same views, in the JSON and the table
+    assert (
+        dcp["views"] == 2
+        and 0 < dcp["lpips"] < 1
+        and f"| baseline: single-image DCP (2D) | {dcp['psnr']:.2f} |" in md
+    )
 
 
 def test_td_eval_default_path_and_plain_method(plain_run):
@@ -101,7 +107,9 @@ def test_td_ablate_runs_resumes_and_tabulates(eval_scene, tmp_path):
     md = (out / "ablation.md").read_text()
     assert "### schedule" in md and "TGC from the start" in md and "tgc-start < no-tgc" in md
     assert (out / "ablation.png").stat().st_size > 1000
-    claims = json.loads((out / "ablation.json").read_text())["claims"]
+    summary = json.loads((out / "ablation.json").read_text())
+    assert set(summary["baseline_psnr"]) == {"hazy_input", "dcp_2d"} and "| single-image DCP (2D) |" not in md
+    claims = summary["claims"]
     assert {c["family"] for c in claims} == {"schedule"} and all(
         c["agrees"] in ("yes", "no", "tie") for c in claims
     )

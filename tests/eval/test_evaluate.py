@@ -12,6 +12,7 @@ from torch import nn
 from components.data.config import DataConfig
 from components.data.images import read_depth
 from components.data.loader import load_scene
+from components.losses.dcp import dehaze, estimate_dcp
 from pipelines.engine.contract import Pipeline, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.evaluate import evaluate, evaluate_split
@@ -167,3 +168,30 @@ def test_no_medium_or_no_true_maps_means_no_medium_numbers(dm):
     bare = DataManager(load_scene(DataConfig(data=dm.scene.root)), torch.device("cpu"))
     bare.scene.extra_paths.pop(REFERENCE_T_KEY)
     assert evaluate(ScriptedPipeline(bare), bare, "test")["medium"] is None
+
+
+def test_single_image_baselines_score_the_test_photos_themselves(dm):
+    report = evaluate(ScriptedPipeline(dm, medium=False), dm, "test")
+    base = report["baselines"]
+    assert list(base) == ["hazy_input", "dcp_2d"] and base["dcp_2d"]["views"] == len(dm.scene.test_indices)
+    hazy_psnr, dcp_psnr = [], []
+    for i in dm.scene.test_indices:  # recomputed here from the photos, independently of the protocol
+        hazy, ref = dm.hazy_image(i).numpy(), dm.clean_image(i).numpy()
+        dcp = dehaze(hazy, estimate_dcp(hazy))
+        hazy_psnr.append(-10 * math.log10(float(((hazy - ref) ** 2).mean())))
+        dcp_psnr.append(-10 * math.log10(float(((dcp - ref) ** 2).mean())))
+    assert base["hazy_input"]["psnr"] == pytest.approx(np.mean(hazy_psnr), abs=1e-3)
+    assert base["dcp_2d"]["psnr"] == pytest.approx(np.mean(dcp_psnr), abs=1e-3)
+    assert base["dcp_2d"]["psnr"] != pytest.approx(
+        base["hazy_input"]["psnr"], abs=0.1
+    )  # DCP changed the photos
+    assert set(report["per_view"][0]["baselines"]) == {"hazy_input", "dcp_2d"}
+    # the method-independent baselines are the same whatever is evaluated
+    assert evaluate(ScriptedPipeline(dm), dm, "test")["baselines"] == base
+
+
+def test_no_clean_references_means_no_baselines(dm):
+    bare = DataManager(load_scene(DataConfig(data=dm.scene.root)), torch.device("cpu"))
+    bare.clean_image = lambda idx: None  # type: ignore[method-assign]
+    report = evaluate(ScriptedPipeline(dm, medium=False), bare, "test")  # renders from dm, scored on bare
+    assert report["baselines"] is None and report["restoration"] is None
