@@ -8,6 +8,7 @@ import sys
 
 import pytest
 
+from pipelines.tridehaze.priors import scaled_step
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError
 
@@ -99,6 +100,16 @@ def test_load_config_missing_file_exit_2(tmp_path):
 def test_overrides_reach_nested_configs():
     cfg = parse_args(["vanilla-gs", "--max-steps", "5", "--pipeline.model.sh-degree", "1", "--seed", "3"])
     assert (cfg.max_steps, cfg.pipeline.model.sh_degree, cfg.seed) == (5, 1, 3)
+
+
+def test_paper_preset_is_the_papers_schedule():
+    """method.md: 15k steps, the medium frozen (Stage II) at 3000; otherwise tri-dehaze's settings."""
+    paper, default = parse_args(["tri-dehaze-paper"]), parse_args(["tri-dehaze"])
+    assert paper.max_steps == 15_000 and default.max_steps == 3000
+    assert scaled_step(paper.pipeline.freeze_step, paper.pipeline.freeze_fraction, paper.max_steps) == 3000
+    assert paper.pipeline == default.pipeline  # only the length differs
+    short = parse_args(["tri-dehaze-paper", "--max-steps", "5000"])  # the freeze keeps its share
+    assert scaled_step(short.pipeline.freeze_step, short.pipeline.freeze_fraction, short.max_steps) == 1000
 
 
 def test_bad_dataset_through_the_cli_is_one_line(tmp_path):
