@@ -29,6 +29,7 @@ DEMO = SceneConfig(
     width=128,
     height=96,
     num_points=3000,
+    seed_cloud="clean",
 )
 """24 orbit views at 128x96 of a courtyard in patchy haze with a sun glow in the medium light."""
 

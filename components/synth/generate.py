@@ -33,6 +33,7 @@ from components.synth.layouts import LAYOUTS, Layout, make_layout
 from components.synth.march import DEFAULT_SAMPLES
 from components.synth.medium import PRESETS, Medium, make_medium
 from components.synth.render import CleanView, apply_medium, render_clean
+from components.synth.seed_cloud import default_count, pick_pixels, place_points
 from components.synth.trajectories import Intrinsics, orbit_poses, walk_poses
 from components.synth.writer import frame_entry, staged_output, write_json, write_map, write_rgb
 from tridehaze_plugin.errors import ConfigError
@@ -71,10 +72,15 @@ class SceneConfig:
     """Sub-pixel rays per axis for the clean colour (anti-aliasing of the fine textures)."""
     beta_scale: float = 1.0
     """Multiplies the preset's extinction (2 = twice as thick)."""
-    num_points: int = 4000
-    """Seed points sampled from the train views' visible surfaces."""
+    seed_cloud: Literal["sfm", "clean"] = "sfm"
+    """Seed points as SfM on hazy photos gives them (sparse, where the hazy view has contrast, depth
+    noise growing with distance, 7 % outliers; measured, docs/synth.md), or ``clean``: true surface
+    points drawn uniformly with only ``--point-noise`` jitter (a flattering prior, for comparison)."""
+    num_points: int | None = None
+    """Seed points over the train views (None: the cloud's own default, sfm 0.3 per 1000 train
+    pixels and at least 64, clean 4000)."""
     point_noise: float = 0.003
-    """Seed point position noise, as a fraction of the point's distance (SfM-like jitter)."""
+    """Seed point jitter on every axis, as a fraction of the point's distance (both clouds)."""
     point_colors: Literal["clean", "hazy"] = "hazy"
     """Seed point colours: the clean surface colour, or the hazy pixel's (what SfM on hazy photos gives)."""
     test_every: int = 8
@@ -97,7 +103,11 @@ class SceneConfig:
             raise ConfigError(f"--fov-deg must be in [1, 170], got {self.fov_deg}")
         if not (math.isfinite(self.beta_scale) and self.beta_scale >= 0):
             raise ConfigError(f"--beta-scale must be a finite number >= 0, got {self.beta_scale}")
-        if self.num_points < 0 or not (math.isfinite(self.point_noise) and self.point_noise >= 0):
+        if self.seed_cloud not in ("sfm", "clean"):
+            raise ConfigError(f"--seed-cloud must be sfm or clean, got {self.seed_cloud!r}")
+        if (self.num_points is not None and self.num_points < 0) or not (
+            math.isfinite(self.point_noise) and self.point_noise >= 0
+        ):
             raise ConfigError("--num-points and --point-noise must be finite and >= 0")
         if self.point_colors not in ("clean", "hazy"):
             raise ConfigError(f"--point-colors must be clean or hazy, got {self.point_colors!r}")
@@ -130,17 +140,20 @@ def split(n: int, test_every: int) -> tuple[list[int], list[int]]:
 
 
 def sample_points(
-    view: CleanView, colors: torch.Tensor, k: int, noise: float, rng: np.random.Generator
+    view: CleanView,
+    hazy: torch.Tensor,
+    colors: torch.Tensor,
+    k: int,
+    cfg: SceneConfig,
+    rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``k`` visible surface points of a view with their pixel's ``colors`` [H, W, 3], jittered along
-    all axes by ``noise * distance``."""
-    idx = np.flatnonzero(view.hit.numpy())
-    if len(idx) == 0 or k == 0:
+    """``k`` seed points of one view (``hazy`` [H, W, 3] decides where the sfm cloud finds
+    features) with their pixel's ``colors`` [H, W, 3]; errors as ``cfg.seed_cloud`` models them."""
+    pick = pick_pixels(cfg.seed_cloud, view.hit.numpy(), hazy, k, rng)
+    if len(pick) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
-    pick = np.sort(rng.choice(idx, size=min(k, len(idx)), replace=False))
-    t = view.t_end.numpy()[pick].astype(np.float64)
-    xyz = view.origins.numpy()[pick] + t[:, None] * view.dirs.numpy()[pick]  # [k, 3]
-    xyz = xyz + rng.normal(size=xyz.shape) * (noise * t)[:, None]
+    o, d = view.origins.numpy()[pick].astype(np.float64), view.dirs.numpy()[pick].astype(np.float64)
+    xyz = place_points(cfg.seed_cloud, o, d, view.t_end.numpy()[pick], cfg.point_noise, rng)  # [k, 3]
     rgb = colors.reshape(-1, 3).numpy()[pick]
     return xyz, np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
@@ -179,7 +192,10 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     K = Intrinsics.from_fov(cfg.width, cfg.height, cfg.fov_deg)
     train, test = split(len(poses), cfg.test_every)
     rng = np.random.default_rng([cfg.seed, 4242])
-    per_view_points = -(-cfg.num_points // max(len(train), 1))
+    num_points = cfg.num_points
+    if num_points is None:
+        num_points = default_count(cfg.seed_cloud, len(train) * cfg.width * cfg.height)
+    per_view_points = -(-num_points // max(len(train), 1))
     t_clean = t_haze = t_write = 0.0
     frames, pts, cols, mean_T = [], [], [], []
     T_hist = np.zeros(1001, dtype=np.int64)  # histogram of T for the median without keeping all maps
@@ -193,16 +209,16 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
         T = hz.transmittance.numpy()
         mean_T.append(float(T.mean()))
         T_hist += np.bincount(np.clip(np.rint(T.ravel() * 1000), 0, 1000).astype(np.int64), minlength=1001)
-        if i in train and cfg.num_points:
+        if i in train and num_points:
             colors = view.clean if cfg.point_colors == "clean" else hz.hazy
-            p, c = sample_points(view, colors, per_view_points, cfg.point_noise, rng)
+            p, c = sample_points(view, hz.hazy, colors, per_view_points, cfg, rng)
             pts.append(p)
             cols.append(c)
         t_clean += t1 - t0
         t_haze += t2 - t1
         t_write += time.perf_counter() - t2
-    xyz = np.concatenate(pts)[: cfg.num_points] if pts else np.zeros((0, 3))
-    rgb = np.concatenate(cols)[: cfg.num_points] if cols else np.zeros((0, 3), np.uint8)
+    xyz = np.concatenate(pts)[:num_points] if pts else np.zeros((0, 3))
+    rgb = np.concatenate(cols)[:num_points] if cols else np.zeros((0, 3), np.uint8)
     write_ply_points(root / "points3d.ply", xyz, rgb)
     transforms = {
         "camera_model": "PINHOLE",

@@ -73,7 +73,9 @@ class ProbeScene:
 
 def _synth_specs(root: Path) -> list[tuple[ProbeScene, SceneConfig]]:
     specs = []
-    dims = {"num_views": 24, "width": 96, "height": 72}
+    # the clean cloud the probe was calibrated and measured on; its sparse, noisy counterpart is
+    # every scene's degraded copy (degrade_points)
+    dims = {"num_views": 24, "width": 96, "height": 72, "seed_cloud": "clean"}
     for layout in LAYOUTS:
         for preset in ("none", "uniform", "homogeneous", "height", "patchy", "dense"):
             name = f"synth-{layout}-{preset}"
@@ -86,7 +88,7 @@ def _synth_specs(root: Path) -> list[tuple[ProbeScene, SceneConfig]]:
                     cfg,
                 )
             )
-        held = {"num_views": 16, "width": 80, "height": 60}
+        held = {"num_views": 16, "width": 80, "height": 60, "seed_cloud": "clean"}
         for preset in ("sunlit", "none", "homogeneous", "patchy"):
             name = f"sunlit-{layout}-{preset}"
             size = dims if preset == "sunlit" else held

@@ -4,10 +4,17 @@
 
     td-bench probe --set-dir probe-set --output-dir probe [--restoration]
 
+    td-bench restoration --set-dir restoration-set --output-dir restoration [--seeds 42 7] [--train-args="..."]
+
 ``probe`` builds the haze probe's scene set (pipelines/experiments/probe_set.py), runs the probe on every scene
 and prints the confusion tables (whole set, held-out part) and, with ``--restoration``, trains the
 fast preset and tri-dehaze on the hazy scenes and prices each wrong verdict; writes
 ``OUT/probe.{md,json,csv,png}``.
+
+``restoration`` builds a generated set with SfM-like seed clouds (every layout, every haze preset;
+pipelines/experiments/restoration_bench.py), trains vanilla-gs, dcp-gs and tri-dehaze on it at each
+seed, and tabulates per scene the restoration (PSNR / SSIM / LPIPS), the medium's T / S errors and
+the single-image baselines, with the targets met or not; writes ``OUT/restoration.{md,json,csv}``.
 
 ``tradeoff`` trains tri-dehaze with every time-costing knob varied one at a time around the default
 (plus the preset candidates), evaluates each run (td-eval) and reports per configuration the wall
@@ -34,7 +41,7 @@ from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
 from pipelines.experiments.tables import fmt_number, mean_finite, nested
 from pipelines.experiments.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
 from tridehaze_plugin.cli.common import run_cli, split_train_args
-from tridehaze_plugin.config import SEED_RANGE, check_numbers
+from tridehaze_plugin.config import SEED_RANGE, Range, check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -285,6 +292,75 @@ def probe(args: ProbeArgs) -> None:
     print("\n".join(md))
 
 
+@dataclass
+class RestorationArgs:
+    """Restoration and medium recovery on a generated set with realistic seed clouds, several seeds."""
+
+    set_dir: Path = Path("restoration-set")
+    """Where the scene set is (or is generated, seconds per scene)."""
+    output_dir: Path = Path("restoration")
+    """Folder for seed<N>/{runs,results}/ and restoration.{md,json,csv}."""
+    seeds: Annotated[list[int], SEED_RANGE] = field(default_factory=lambda: [42, 7])
+    """Seeds of every run (a difference smaller than their spread is not a result)."""
+    max_steps: Annotated[int, Range(1)] = 3000
+    """Steps of every run."""
+    methods: list[str] = field(default_factory=lambda: ["vanilla-gs", "dcp-gs", "tri-dehaze"])
+    """Methods to train; the table reports the last one against the others and the 2D baselines."""
+    scenes: list[str] = field(default_factory=list)
+    """Names of a subset of the set's scenes (empty: all)."""
+    jobs: Annotated[int, Range(1)] = 2
+    """Runs in parallel (separate processes)."""
+    threads: Annotated[int, Range(1)] = 1
+    """Torch threads per run."""
+    lpips: Literal["auto", "on", "off"] = "auto"
+    """LPIPS in the evaluation."""
+    train_args: str = ""
+    """Extra td-train arguments for every run (``--train-args="..."``): the knob under test."""
+
+
+def restoration(args: RestorationArgs) -> None:
+    from pipelines.experiments import restoration_bench as rb
+
+    if not args.methods or not args.seeds:
+        raise ConfigError("--methods and --seeds need at least one value each")
+    unknown = sorted(set(args.scenes) - set(rb.scene_names()))
+    if unknown:
+        raise ConfigError(
+            f"unknown scene(s) {', '.join(unknown)}", fix=f"choose from {', '.join(rb.scene_names())}"
+        )
+    paths = rb.build(args.set_dir, args.scenes)
+    names = [p.name for p in paths]
+    results: dict[int, list[dict[str, Any]]] = {}
+    for seed in args.seeds:
+        opts = RunnerOptions(output_dir=args.output_dir / f"seed{seed}", max_steps=args.max_steps, seed=seed,
+                             threads=args.threads, jobs=args.jobs, bins="none", lpips=args.lpips,
+                             extra=split_train_args(args.train_args))  # fmt: skip
+        jobs = [Job(p, v) for p in paths for v in rb.variants(args.methods, args.max_steps)]
+        results[seed] = AblationRunner(opts).run(jobs, lambda job, res, skipped, seed=seed: print(
+            f"seed {seed} {job.scene.name} / {job.variant.name}: {fmt_number(nested(res, 'restoration', 'psnr'))} dB "
+            f"({'finished earlier' if skipped else res['status']})", flush=True))  # fmt: skip
+    method = args.methods[-1]
+    rows = rb.scene_rows(results, names, method)
+    checks = rb.check_targets(rows)
+    header = (f"# Restoration benchmark: {method}, {len(names)} scenes, {args.max_steps} steps, "
+              f"seeds {', '.join(map(str, args.seeds))}\n\n")  # fmt: skip
+    md = header + rb.markdown(rows, checks, method, args.seeds)
+    out = args.output_dir
+    write_text_atomic(out / "restoration.md", md)
+    write_text_atomic(out / "restoration.json", json.dumps(
+        {"scenes": names, "seeds": args.seeds, "method": method, "rows": rows, "targets": checks,
+         "train_args": args.train_args, "results": {str(k): v for k, v in results.items()}}, indent=1))  # fmt: skip
+    write_text_atomic(
+        out / "restoration.csv", csv_rows([{k: v for k, v in r.items() if k != "per_seed"} for r in rows])
+    )
+    print(md)
+    failed = [r for rs in results.values() for r in rs if r["status"] != "ok"]
+    for r in failed:
+        print(f"failed: {r['scene']} / {r['variant']}: {r.get('why')} ({r.get('log')})", file=sys.stderr)
+    if failed:
+        raise SystemExit(1)
+
+
 def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
     """Optical depth interval against the haze floor, one marker per scene, coloured by truth."""
     import matplotlib
@@ -327,13 +403,15 @@ def plot_probe(rows: list[dict[str, Any]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = tyro.extras.subcommand_cli_from_dict(
-        {"tradeoff": TradeoffArgs, "probe": ProbeArgs},
+        {"tradeoff": TradeoffArgs, "probe": ProbeArgs, "restoration": RestorationArgs},
         args=sys.argv[1:] if argv is None else argv,
         prog="td-bench",
     )
     check_numbers(args)
     if isinstance(args, ProbeArgs):
         probe(args)
+    elif isinstance(args, RestorationArgs):
+        restoration(args)
     else:
         tradeoff(args)
 

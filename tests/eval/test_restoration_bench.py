@@ -1,0 +1,77 @@
+"""td-bench restoration: the table's arithmetic, the targets, and one tiny end-to-end sweep."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from pipelines.experiments.restoration_bench import SCENES, Targets, check_targets, markdown, scene_rows
+
+
+def _r(scene: str, method: str, psnr: float, **extra) -> dict:
+    out = {"scene": scene, "variant": method, "status": "ok", "restoration": {"psnr": psnr, "ssim": 0.8, "lpips": 0.2},
+           "baselines": {"hazy_input": {"psnr": 10.0}, "dcp_2d": {"psnr": 15.0}}}  # fmt: skip
+    out.update(extra)
+    return out
+
+
+def test_the_set_covers_every_layout_and_hazy_preset():
+    from components.synth.layouts import LAYOUTS
+    from components.synth.medium import PRESETS
+
+    assert {layout for layout, _ in SCENES} == set(LAYOUTS)
+    assert {haze for _, haze in SCENES} == set(PRESETS) - {"none"}
+
+
+def test_rows_average_seeds_and_targets_name_the_worst_scene():
+    results = {
+        42: [_r("a", "tri-dehaze", 24.0, medium={"t_mae": 0.04, "s_mae": 0.02}), _r("a", "vanilla-gs", 12.0),
+             _r("a", "dcp-gs", 16.0), _r("b", "tri-dehaze", 19.0, medium={"t_mae": 0.08, "s_mae": 0.02}),
+             _r("b", "vanilla-gs", 11.0), _r("b", "dcp-gs", 0.0, status="failed")],
+        7: [_r("a", "tri-dehaze", 22.0, medium={"t_mae": 0.06, "s_mae": 0.02}), _r("a", "vanilla-gs", 14.0),
+            _r("a", "dcp-gs", 18.0)],
+    }  # fmt: skip
+    rows = scene_rows(results, ["a", "b"], "tri-dehaze")
+    a, b = rows
+    assert (
+        a["psnr"] == 23.0 and a["spread"] == 2.0 and a["seeds"] == 2 and a["per_seed"] == {42: 24.0, 7: 22.0}
+    )
+    assert a["vanilla-gs"] == 13.0 and a["dcp-gs"] == 17.0 and a["t_mae"] == pytest.approx(0.05)
+    assert b["seeds"] == 1 and b["spread"] is None and b["dcp-gs"] is None  # the failed run is no number
+    checks = {c["target"]: c for c in check_targets(rows, Targets())}
+    assert (
+        checks["mean restoration PSNR (dB)"]["value"] == 21.0
+        and checks["mean restoration PSNR (dB)"]["met"] is False
+    )
+    assert checks["worst margin over vanilla-gs (dB)"]["value"] == 8.0  # min(23 - 13, 19 - 11)
+    assert checks["worst margin over vanilla-gs (dB)"]["met"] is True
+    assert checks["worst margin over dcp-gs (dB)"]["met"] is None  # not measured on every scene
+    assert checks["worst margin over single-image DCP (dB)"]["value"] == 4.0
+    assert checks["mean T MAE"]["value"] == pytest.approx(0.065) and checks["mean T MAE"]["met"] is False
+    assert checks["mean S MAE"]["met"] is True
+    md = markdown(rows, list(checks.values()), "tri-dehaze", [42, 7])
+    assert "| a | 10.00 | 15.00 | 13.00 | 17.00 | 23.00 (2.00) |" in md and "| +10.00 | +6.00 | +8.00 |" in md
+    assert "| mean T MAE | 0.065 | 0.05 | no |" in md
+
+
+def test_td_bench_restoration_end_to_end(tmp_path):
+    out = tmp_path / "out"
+    args = ["--set-dir", str(tmp_path / "set"), "--output-dir", str(out), "--scenes", "room-uniform",
+            "--seeds", "1", "2", "--max-steps", "3", "--methods", "vanilla-gs", "tri-dehaze", "--lpips", "off",
+            "--train-args=--pipeline.warmup-steps 1 --pipeline.rasterizer.backend torch"]  # fmt: skip
+    r = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", *args],
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert [p.name for p in (tmp_path / "set").iterdir()] == ["room-uniform"]  # only the subset is built
+    summary = json.loads((out / "restoration.json").read_text())
+    (row,) = summary["rows"]
+    assert row["scene"] == "room-uniform" and row["seeds"] == 2 and set(row["per_seed"]) == {"1", "2"}
+    assert row["psnr"] > 5 and row["vanilla-gs"] > 5 and row["dcp_2d"] > 5 and 0 <= row["t_mae"] <= 1
+    assert "| room-uniform |" in (out / "restoration.md").read_text()
+    bad = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", "--scenes", "moon-fog",
+                          "--set-dir", str(tmp_path / "set2")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert bad.returncode == 2 and "moon-fog" in bad.stderr and "Traceback" not in bad.stderr
+    assert not (tmp_path / "set2").exists()

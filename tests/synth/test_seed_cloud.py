@@ -1,0 +1,96 @@
+"""td-synth's seed clouds: the default is as sparse and noisy as SfM on hazy photos; clean on request."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from components.data.ply import read_ply_points
+from components.synth.seed_cloud import (
+    SFM_MIN_POINTS,
+    SFM_NOISE_FLOOR,
+    SFM_NOISE_SLOPE,
+    SFM_OUTLIERS,
+    default_count,
+    pick_pixels,
+    place_points,
+)
+from tests.synth.conftest import make_tiny
+
+GL_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def test_default_counts():
+    assert default_count("sfm", 1_000_000) == 300  # 0.3 per 1000 train pixels
+    assert default_count("sfm", 10_000) == SFM_MIN_POINTS
+    assert default_count("clean", 10_000) == 4000
+
+
+def test_features_come_from_contrast_not_from_flat_or_sky_pixels():
+    rng = np.random.default_rng(0)
+    hazy = torch.full((40, 40, 3), 0.6)  # [H, W, 3] flat grey
+    hazy[:, 20:] = torch.from_numpy(rng.uniform(0.3, 0.9, size=(40, 20, 1))).float()  # textured right half
+    hit = np.ones(40 * 40, bool)
+    hit[: 40 * 5] = False  # the top rows are sky
+    cols = pick_pixels("sfm", hit, hazy, 300, np.random.default_rng(1)) % 40
+    rows = pick_pixels("sfm", hit, hazy, 300, np.random.default_rng(1)) // 40
+    assert len(cols) == 300 and rows.min() >= 5
+    assert (cols >= 18).mean() > 0.95  # the flat half has no features (its 3x3 border aside)
+    uniform = pick_pixels("clean", hit, hazy, 300, np.random.default_rng(1)) % 40
+    assert 0.35 < (uniform < 20).mean() < 0.65 and len(np.unique(uniform)) > 30
+
+
+def test_sfm_depth_noise_and_outliers_follow_the_model(monkeypatch):
+    n = 200_000
+    rng = np.random.default_rng(3)
+    o, d = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
+    t = np.full(n, 5.0)
+    z = place_points("sfm", o, d, t, 0.0, rng)[:, 2]
+    rel = z / 5.0 - 1.0
+    outlier = np.abs(rel) > 0.2  # the noise's sigma is 3 % here: beyond 0.2 only outliers remain
+    assert abs(outlier.mean() - SFM_OUTLIERS * 0.6) < 0.01  # |factor - 1| > 0.2 for 60 % of U(0.5, 1.5)
+    monkeypatch.setattr("components.synth.seed_cloud.SFM_OUTLIERS", 0.0)  # the noise alone
+    rel = place_points("sfm", o, d, t, 0.0, np.random.default_rng(4))[:, 2] / 5.0 - 1.0
+    assert np.std(rel) == pytest.approx(SFM_NOISE_FLOOR + SFM_NOISE_SLOPE, rel=0.02)  # t = the median
+    clean = place_points("clean", o, d, t, 0.003, np.random.default_rng(3))
+    assert np.std(clean[:, 2] / 5.0 - 1.0) == pytest.approx(0.003, rel=0.05)
+
+
+def _best_view_errors(root) -> np.ndarray:
+    """Per seed point, its relative depth error in the train view where it agrees best."""
+    tf = json.loads((root / "transforms.json").read_text())
+    xyz, _ = read_ply_points(root / "points3d.ply")
+    K = np.array([[tf["fl_x"], 0, tf["cx"]], [0, tf["fl_y"], tf["cy"]], [0, 0, 1.0]])
+    best = np.full(len(xyz), np.inf)
+    for fr in tf["frames"]:
+        if fr["file_path"] not in tf["train_filenames"]:
+            continue
+        w2c = np.linalg.inv(np.asarray(fr["transform_matrix"]) @ GL_CV)
+        cam = xyz @ w2c[:3, :3].T + w2c[:3, 3]  # [N, 3]
+        uv = (cam @ K.T)[:, :2] / np.maximum(cam[:, 2:3], 1e-9)
+        depth = np.load(root / fr["gt_depth_file_path"])  # [H, W]
+        h, w = depth.shape
+        u, v = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+        inside = (cam[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        zt = depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)]
+        best = np.minimum(best, np.where(inside, np.abs(cam[:, 2] - zt) / zt, np.inf))
+    return best
+
+
+def test_default_cloud_is_sfm_like_and_clean_stays_available(tmp_path):
+    common = dict(num_views=9, width=64, height=48, num_points=1500, test_every=0)
+    sfm = make_tiny(tmp_path / "sfm", **common)
+    clean = make_tiny(tmp_path / "clean", seed_cloud="clean", **common)
+    assert (sfm / "images" / "0003.png").read_bytes() == (clean / "images" / "0003.png").read_bytes()
+    e_sfm, e_clean = _best_view_errors(sfm), _best_view_errors(clean)
+    assert len(e_sfm) == len(e_clean) == 1500
+    assert np.median(e_clean) < 0.005 and (e_clean > 0.1).mean() < 0.01
+    assert 0.005 < np.median(e_sfm) < 0.05  # measured SfM: 0.5-8 % by depth
+    assert 0.02 < (e_sfm > 0.1).mean() < 0.2  # measured SfM: 3-11 % beyond 10 %
+    meta = json.loads((sfm / "synth_meta.json").read_text())
+    assert meta["settings"]["seed_cloud"] == "sfm"
+    auto = make_tiny(tmp_path / "auto", **{**common, "num_points": None})
+    assert len(read_ply_points(auto / "points3d.ply")[0]) == default_count("sfm", 9 * 64 * 48)
