@@ -70,6 +70,13 @@ class BinAccumulator:
             view[name] = _bin_numbers(se, ss, n, t.numel())
         return view
 
+    def report(self, source: str | None) -> dict[str, Any] | None:
+        """The report's ``binned`` block (None where no view had a transmittance to bin by)."""
+        if source is None:
+            return None
+        bins = {"high": "T > 0.7", "mid": "0.4 < T <= 0.7", "low": "T <= 0.4"}
+        return {"source": source, "bins": bins, **self.result()}
+
     def result(self) -> dict[str, dict[str, float | None]]:
         total = max(sum(self.pixels.values()), 1)
         return {n: _bin_numbers(self.sq_err[n], self.ssim_sum[n], self.pixels[n], total) for n, _, _ in BINS}
@@ -133,9 +140,6 @@ def evaluate(
     indices = dm.scene.indices(split)
     names = dm.scene.names()
     medium = pipeline.composites_medium
-    restore_rows: list[dict[str, float | None]] = []
-    baseline_rows: dict[str, list[dict[str, float | None]]] = {k: [] for k in BASELINES}
-    recon_rows: list[dict[str, float | None]] = []
     binned = BinAccumulator()
     recovery = MediumAccumulator()
     bin_source: str | None = None
@@ -147,55 +151,50 @@ def evaluate(
         row: dict[str, Any] = {"name": names[idx]}
         if clean_ref is not None:
             row["restoration"] = _scores(out["clean"], clean_ref, lpips_fn)
-            restore_rows.append(row["restoration"])
             trans, source = _bin_transmittance(bins, medium, out, dm, idx)
             if trans is not None:
                 bin_source = source
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
             if hazy_in is not None:
-                row["baselines"] = _baseline_scores(hazy_in, clean_ref, lpips_fn, baseline_rows)
+                row["baselines"] = {
+                    k: _scores(im, clean_ref, lpips_fn) for k, im in baseline_images(hazy_in).items()
+                }
         true_t, true_s = _true_medium(dm, idx, out) if medium else (None, None)
         if true_t is not None:
             model_t, model_s = out["transmittance"], out["scattering"]
             row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
         if hazy_in is not None:
             row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
-            recon_rows.append(row["reconstruction"])
         per_view.append(row)
         if on_view is not None:
             on_view(ViewRender(idx, names[idx], out, hazy_in, clean_ref, true_t, true_s))
-    recon = _mean(recon_rows)
+    recon = _mean(_column(per_view, "reconstruction"))
     if recon is not None:
         recon["composite"] = medium
     return {
         "split": split,
         "views": len(indices),
-        "restoration": _mean(restore_rows),
+        "restoration": _mean(_column(per_view, "restoration")),
         "reconstruction": recon,
-        "binned": None
-        if bin_source is None
-        else {
-            "source": bin_source,
-            "bins": {"high": "T > 0.7", "mid": "0.4 < T <= 0.7", "low": "T <= 0.4"},
-            **binned.result(),
-        },
+        "binned": binned.report(bin_source),
         "medium": recovery.result(),
-        "baselines": None
-        if not baseline_rows[BASELINES[0]]
-        else {k: _mean(v) for k, v in baseline_rows.items()},
+        "baselines": {k: _mean(_column(per_view, "baselines", k)) for k in BASELINES}
+        if _column(per_view, "baselines")
+        else None,
         "per_view": per_view,
     }
 
 
-def _baseline_scores(
-    hazy: Tensor, reference: Tensor, lpips_fn: LpipsFn | None, rows: dict[str, list[dict[str, float | None]]]
-) -> dict[str, dict[str, float | None]]:
-    """One view's single-image baseline scores, each also appended to its list in ``rows``."""
-    view = {}
-    for name, image in baseline_images(hazy).items():
-        view[name] = _scores(image, reference, lpips_fn)
-        rows[name].append(view[name])
-    return view
+def _column(per_view: list[dict[str, Any]], *keys: str) -> list[Any]:
+    """``row[k1][k2]...`` of every per-view row that has it."""
+    out = []
+    for row in per_view:
+        node: Any = row
+        for k in keys:
+            node = node.get(k) if isinstance(node, dict) else None
+        if node is not None:
+            out.append(node)
+    return out
 
 
 def _true_medium(dm: DataManager, idx: int, out: dict[str, Tensor]) -> tuple[Tensor | None, Tensor | None]:

@@ -91,7 +91,11 @@ def scenes(tmp_path_factory):
     root = tmp_path_factory.mktemp("degenerate")
     street = tiny_hazy_scene(root / "street", layout="street", haze="homogeneous", seed=6, test_every=4)
     fog = tiny_hazy_scene(root / "fog", layout="room", haze="dense", beta_scale=12.0, seed=2, test_every=4)
-    sky = tiny_hazy_scene(root / "sky", layout="field", haze="homogeneous", seed=3, test_every=4)
+    # the clean cloud: SfM-like outliers far along their rays would make big seed Gaussians whose
+    # tails cover the sky views, and the test is about the views, not the cloud
+    sky = tiny_hazy_scene(
+        root / "sky", layout="field", haze="homogeneous", seed=3, test_every=4, seed_cloud="clean"
+    )
     names = _sky_views(sky, "field", "homogeneous", seed=3, n=3)
     return {
         "street": street,

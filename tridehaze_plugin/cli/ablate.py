@@ -101,6 +101,15 @@ def baseline_psnrs(scene: Path) -> dict[str, float]:
     return {name: sum(v) / len(v) for name, v in vals.items()}
 
 
+def scene_baselines(scenes: list[Path]) -> dict[str, dict[str, float]]:
+    """Single-image baseline -> scene name -> mean PSNR over its test views."""
+    out: dict[str, dict[str, float]] = {}
+    for scene in scenes:
+        for name, value in baseline_psnrs(scene).items():
+            out.setdefault(name, {})[scene.name] = value
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     args = tyro.cli(AblateArgs, args=sys.argv[1:] if argv is None else argv, prog="td-ablate")
     _check(args)
@@ -119,10 +128,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"{job.scene.name:>16}  {job.variant.name:<16} {state:<7} td-train {' '.join(job.variant.train_args())}"
             )
         return
-    baselines: dict[str, dict[str, float]] = {}
-    for scene in args.scenes:
-        for name, value in baseline_psnrs(scene).items():
-            baselines.setdefault(name, {})[scene.name] = value
+    baselines = scene_baselines(args.scenes)
     t0 = time.perf_counter()
     counter = {"n": 0}
 
