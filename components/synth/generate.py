@@ -77,8 +77,8 @@ class SceneConfig:
     noise growing with distance, 7 % outliers; measured, docs/synth.md), or ``clean``: true surface
     points drawn uniformly with only ``--point-noise`` jitter (a flattering prior, for comparison)."""
     num_points: int | None = None
-    """Seed points over the train views (None: the cloud's own default, sfm 0.3 per 1000 train
-    pixels and at least 64, clean 4000)."""
+    """Seed points over the train views (None: the cloud's own default, sfm 30 per train view and
+    at least 64, clean 4000)."""
     point_noise: float = 0.003
     """Seed point jitter on every axis, as a fraction of the point's distance (both clouds)."""
     point_colors: Literal["clean", "hazy"] = "hazy"
@@ -194,7 +194,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     rng = np.random.default_rng([cfg.seed, 4242])
     num_points = cfg.num_points
     if num_points is None:
-        num_points = default_count(cfg.seed_cloud, len(train) * cfg.width * cfg.height)
+        num_points = default_count(cfg.seed_cloud, len(train))
     per_view_points = -(-num_points // max(len(train), 1))
     t_clean = t_haze = t_write = 0.0
     frames, pts, cols, mean_T = [], [], [], []

@@ -5,12 +5,13 @@ and the medium's initialisation an almost perfect geometry that no capture has. 
 ``sfm`` cloud follows what ``td-process-data`` (COLMAP, CLAHE-enhanced matching) actually
 reconstructs from generated hazy photos (``benchmarks/seed_cloud.py``, docs/results/seed_cloud.md):
 
-- sparse: about 0.3 points per 1000 train-view pixels (measured 0.15-0.49);
+- sparse: 30 points per train view (measured 24-36 per registered view, 0.15-0.49 per 1000
+  pixels at 320x240);
 - where a matcher finds features: pixels drawn in proportion to the local contrast of the
   CLAHE-enhanced hazy view (a flat or fully veiled surface gets none, sky never);
 - depth noise along the ray growing with distance: sigma / z = 0.5 % + 2.5 % * z / z_median of the
   view (measured median errors 0.5-2 % near, 1.5-8 % far);
-- 5 % outliers moved along their ray by up to +-50 % (with the depth noise, 7-9 % of the points are
+- 5 % outliers moved along their ray by up to +-50 % (with the depth noise, 4-10 % of the points are
   more than 10 % off; measured 3-11 %).
 """
 
@@ -22,8 +23,10 @@ import torch
 
 from components.sfm.enhance import clahe
 
-SFM_DENSITY = 0.3e-3
-"""Points per train-view pixel of the ``sfm`` cloud when the count is not given."""
+SFM_POINTS_PER_VIEW = 30
+"""Points per train view of the ``sfm`` cloud when the count is not given (measured 24-36 per
+registered view at 320x240). Per view, not per pixel: SfM runs on the photos at capture size,
+while generated benchmark scenes are rendered small to train fast."""
 SFM_MIN_POINTS = 64
 """Floor on the ``sfm`` cloud's default count (a handful of points seeds nothing)."""
 SFM_NOISE_FLOOR = 0.005
@@ -34,11 +37,11 @@ SFM_OUTLIERS = 0.05
 """Share of ``sfm`` points moved along their ray by a factor in [0.5, 1.5]."""
 
 
-def default_count(model: str, train_pixels: int) -> int:
-    """The number of seed points of ``model`` for a capture of ``train_pixels`` train-view pixels."""
+def default_count(model: str, train_views: int) -> int:
+    """The number of seed points of ``model`` for a capture of ``train_views`` training views."""
     if model == "clean":
         return 4000
-    return max(SFM_MIN_POINTS, round(SFM_DENSITY * train_pixels))
+    return max(SFM_MIN_POINTS, SFM_POINTS_PER_VIEW * train_views)
 
 
 def feature_weight(hazy: torch.Tensor) -> np.ndarray:

@@ -24,9 +24,9 @@ GL_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def test_default_counts():
-    assert default_count("sfm", 1_000_000) == 300  # 0.3 per 1000 train pixels
-    assert default_count("sfm", 10_000) == SFM_MIN_POINTS
-    assert default_count("clean", 10_000) == 4000
+    assert default_count("sfm", 20) == 600  # 30 per train view, whatever the render size
+    assert default_count("sfm", 1) == SFM_MIN_POINTS
+    assert default_count("clean", 20) == 4000
 
 
 def test_features_come_from_contrast_not_from_flat_or_sky_pixels():
@@ -93,4 +93,4 @@ def test_default_cloud_is_sfm_like_and_clean_stays_available(tmp_path):
     meta = json.loads((sfm / "synth_meta.json").read_text())
     assert meta["settings"]["seed_cloud"] == "sfm"
     auto = make_tiny(tmp_path / "auto", **{**common, "num_points": None})
-    assert len(read_ply_points(auto / "points3d.ply")[0]) == default_count("sfm", 9 * 64 * 48)
+    assert len(read_ply_points(auto / "points3d.ply")[0]) == default_count("sfm", 9)
