@@ -11,6 +11,7 @@ once by the data layer, so no distortion parameters live here.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import torch
@@ -23,6 +24,30 @@ _GL_CV_FLIP = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float6
 def opengl_to_opencv(c2w: Tensor) -> Tensor:
     """Convert camera-to-world matrices [..., 4, 4] from OpenGL to OpenCV camera axes."""
     return c2w @ _GL_CV_FLIP.to(c2w)
+
+
+@dataclass(frozen=True)
+class ViewIntrinsics:
+    """Pinhole intrinsics of one view (or of views sharing them), in pixels."""
+
+    fx: float
+    """Focal length along x (pixels)."""
+    fy: float
+    """Focal length along y (pixels)."""
+    cx: float
+    """Principal point x (pixels; pixel centres at +0.5, so the image centre is ``width / 2``)."""
+    cy: float
+    """Principal point y (pixels; pixel centres at +0.5, so the image centre is ``height / 2``)."""
+    width: int
+    """Image width (pixels)."""
+    height: int
+    """Image height (pixels)."""
+
+    @staticmethod
+    def from_fov(width: int, height: int, fov_x_deg: float) -> ViewIntrinsics:
+        """Square pixels, principal point at the image centre, horizontal field of view ``fov_x_deg``."""
+        f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
+        return ViewIntrinsics(fx=f, fy=f, cx=width / 2, cy=height / 2, width=width, height=height)
 
 
 @dataclass

@@ -77,8 +77,9 @@ def scaled_size(width: int, height: int, downscale: int) -> tuple[int, int]:
 
 
 def frame_geometry(frame: Frame, downscale: int) -> Geometry:
-    src = Intrinsics(frame.fx, frame.fy, frame.cx, frame.cy)
-    size = (int(frame.width), int(frame.height))
+    k = frame.intrinsics
+    src = Intrinsics(k.fx, k.fy, k.cx, k.cy)
+    size = (int(k.width), int(k.height))
     dist = tuple(float(d) for d in frame.distortion) if any(d != 0.0 for d in frame.distortion) else ()
     pinhole = _undistorted_intrinsics(src, dist, size, frame) if dist else src
     out_size = scaled_size(*size, downscale)

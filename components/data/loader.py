@@ -282,7 +282,8 @@ def _check_pose(f: Frame) -> None:
 
 
 def _check_intrinsics(f: Frame) -> None:
-    vals = {"fx": f.fx, "fy": f.fy, "width": f.width, "height": f.height}
+    intr = f.intrinsics
+    vals = {"fx": intr.fx, "fy": intr.fy, "width": intr.width, "height": intr.height}
     for k, v in vals.items():
         if not np.isfinite(v) or v <= 0:
             raise DataError(
@@ -290,15 +291,16 @@ def _check_intrinsics(f: Frame) -> None:
                 where=str(f.image_path),
                 fix="focal lengths and image sizes must be positive",
             )
-    if not (np.isfinite(f.cx) and np.isfinite(f.cy)):
+    if not (np.isfinite(intr.cx) and np.isfinite(intr.cy)):
         raise DataError(f"frame {f.name} has an invalid principal point", where=str(f.image_path))
 
 
 def _check_image_size(f: Frame) -> tuple[int, int]:
     size = image_size(f.image_path)  # DataError for unreadable / corrupt files
-    if size != (f.width, f.height):
+    k = f.intrinsics
+    if size != (k.width, k.height):
         raise DataError(
-            f"image is {size[0]}x{size[1]} but its camera says {f.width}x{f.height}",
+            f"image is {size[0]}x{size[1]} but its camera says {k.width}x{k.height}",
             where=str(f.image_path),
             fix="use the images the camera model was made for (not a resized copy), or fix w/h",
         )

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from components.data.cameras import ViewIntrinsics
 from components.data.scene import DataWarning, Frame
 from tridehaze_plugin.errors import DataError, first_few
 
@@ -31,13 +32,13 @@ def check_downscaled_size(frames: list[Frame], out_sizes: list[tuple[int, int]],
     that are that small on disk are the data, not the flag's doing)."""
     short = [
         i for i, (f, size) in enumerate(zip(frames, out_sizes, strict=True))
-        if min(size) < min(MIN_IMAGE_SIDE, f.width, f.height)
+        if min(size) < min(MIN_IMAGE_SIDE, f.intrinsics.width, f.intrinsics.height)
     ]  # fmt: skip
     if not short:
         return
     i = short[0]
     f = frames[i]
-    largest = max(1, min(f.width, f.height) // MIN_IMAGE_SIDE)
+    largest = max(1, min(f.intrinsics.width, f.intrinsics.height) // MIN_IMAGE_SIDE)
     raise DataError(
         f"--downscale {downscale} makes frame {f.name} {out_sizes[i][0]}x{out_sizes[i][1]} pixels "
         f"(at least {MIN_IMAGE_SIDE} per side are needed)",
@@ -66,13 +67,17 @@ def check_camera_spread(frames: list[Frame], centres: np.ndarray) -> None:
 
 def check_principal_points(frames: list[Frame], root: Path) -> None:
     """Warn about principal points outside their image (possible for crops, usually a unit mix-up)."""
-    off = [f.name for f in frames if not (0.0 <= f.cx <= f.width and 0.0 <= f.cy <= f.height)]
+    off = [f.name for f in frames if not _principal_point_inside(f.intrinsics)]
     if off:
         warnings.warn(
             f"{len(off)} view(s) have their principal point outside the image ({first_few(off)}; {root})",
             DataWarning,
             stacklevel=3,
         )
+
+
+def _principal_point_inside(k: ViewIntrinsics) -> bool:
+    return 0.0 <= k.cx <= k.width and 0.0 <= k.cy <= k.height
 
 
 def check_seed_visibility(

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from components.data.cameras import Cameras
+from components.data.cameras import Cameras, ViewIntrinsics
 from tridehaze_plugin.errors import InputWarning
 
 
@@ -31,12 +31,8 @@ class Frame:
     """Image file name relative to the dataset root (used for splits and messages)."""
     image_path: Path
     c2w: np.ndarray  # [4, 4] float64, OpenCV axes
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
+    intrinsics: ViewIntrinsics
+    """As in the file: before undistortion and downscaling."""
     camera_model: str = "PINHOLE"
     """COLMAP model name; anything but PINHOLE is undistorted by the loader."""
     distortion: tuple[float, ...] = ()

@@ -13,13 +13,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from components.data.cameras import ViewIntrinsics
 from components.data.images import write_image_atomic
 from components.synth.generate import HazeName, LayoutName, camera_poses, torch_threads
 from components.synth.layouts import make_layout
 from components.synth.march import DEFAULT_SAMPLES
 from components.synth.medium import PRESETS, make_medium
 from components.synth.render import apply_medium, render_clean
-from components.synth.trajectories import Intrinsics
 from components.synth.writer import share_like_umask
 from tridehaze_plugin.errors import ConfigError, UserError
 
@@ -75,7 +75,7 @@ def make_gallery(cfg: GalleryConfig) -> dict[str, float]:
     if cfg.output.suffix.lower() != ".png":
         raise UserError("--output must end in .png", where=str(cfg.output))
     t0 = time.perf_counter()
-    K = Intrinsics.from_fov(cfg.width, cfg.height, 60.0)
+    K = ViewIntrinsics.from_fov(cfg.width, cfg.height, 60.0)
     tw, th = cfg.width, cfg.height
     cols = len(cfg.layouts) * 3
     canvas = np.full(

@@ -28,13 +28,14 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from components.data.cameras import ViewIntrinsics
 from components.data.ply import write_ply_points
 from components.synth.layouts import LAYOUTS, Layout, make_layout
 from components.synth.march import DEFAULT_SAMPLES
 from components.synth.medium import PRESETS, Medium, make_medium
 from components.synth.render import CleanView, apply_medium, render_clean
 from components.synth.seed_cloud import default_count, pick_pixels, place_points
-from components.synth.trajectories import Intrinsics, orbit_poses, walk_poses
+from components.synth.trajectories import orbit_poses, walk_poses
 from components.synth.writer import frame_entry, staged_output, write_json, write_map, write_rgb
 from tridehaze_plugin.errors import ConfigError
 
@@ -189,7 +190,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     layout = make_layout(cfg.layout, cfg.seed)
     medium = make_medium(cfg.haze, layout.medium_context(), cfg.seed, cfg.beta_scale)
     kind, poses = camera_poses(layout, cfg.trajectory, cfg.num_views)
-    K = Intrinsics.from_fov(cfg.width, cfg.height, cfg.fov_deg)
+    K = ViewIntrinsics.from_fov(cfg.width, cfg.height, cfg.fov_deg)
     train, test = split(len(poses), cfg.test_every)
     rng = np.random.default_rng([cfg.seed, 4242])
     num_points = cfg.num_points

@@ -13,12 +13,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from components.data.cameras import ViewIntrinsics
 from components.synth.geometry import Hit, SceneGeometry, occluded, trace_grid
 from components.synth.layouts import Layout, Sky
 from components.synth.march import march
 from components.synth.medium import Medium
 from components.synth.textures import albedo
-from components.synth.trajectories import Intrinsics, camera_rays, supersampled
+from components.synth.trajectories import camera_rays, supersampled
 
 
 @dataclass
@@ -84,12 +85,12 @@ def shade(layout: Layout, o: Tensor, d: Tensor, hit: Hit) -> Tensor:
     return out
 
 
-def _trace(geo: SceneGeometry, c2w: np.ndarray, K: Intrinsics) -> tuple[Tensor, Tensor, Tensor, Hit]:
+def _trace(geo: SceneGeometry, c2w: np.ndarray, K: ViewIntrinsics) -> tuple[Tensor, Tensor, Tensor, Hit]:
     o, d, dz = camera_rays(c2w, K)
     return o, d, dz, trace_grid(geo, o, d, c2w, K.fx, K.fy, K.cx, K.cy)
 
 
-def render_clean(layout: Layout, c2w: np.ndarray, K: Intrinsics, ss: int = 2) -> CleanView:
+def render_clean(layout: Layout, c2w: np.ndarray, K: ViewIntrinsics, ss: int = 2) -> CleanView:
     """Trace and shade one view; ``ss x ss`` sub-pixel rays per pixel for the colour."""
     H, W = K.height, K.width
     o, d, dz, hit = _trace(layout.geometry, c2w, K)

@@ -9,22 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics shared by all views (pixel centres at +0.5, as in the data layer)."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    @staticmethod
-    def from_fov(width: int, height: int, fov_x_deg: float) -> Intrinsics:
-        f = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
-        return Intrinsics(width, height, f, f, width / 2, height / 2)
+from components.data.cameras import ViewIntrinsics
 
 
 @dataclass(frozen=True)
@@ -106,7 +91,7 @@ def orbit_poses(path: OrbitPath, n: int) -> list[np.ndarray]:
     return poses
 
 
-def camera_rays(c2w: np.ndarray, K: Intrinsics) -> tuple[Tensor, Tensor, Tensor]:
+def camera_rays(c2w: np.ndarray, K: ViewIntrinsics) -> tuple[Tensor, Tensor, Tensor]:
     """Rays through the pixel centres of ``K``: origin [3], unit world directions [H, W, 3] and each
     direction's camera-z component [H, W] (z-depth = distance * dz)."""
     ys = torch.arange(K.height, dtype=torch.float32)[:, None] + 0.5
@@ -120,6 +105,8 @@ def camera_rays(c2w: np.ndarray, K: Intrinsics) -> tuple[Tensor, Tensor, Tensor]
     return torch.from_numpy(c2w[:3, 3]).float(), d, 1.0 / norm
 
 
-def supersampled(K: Intrinsics, ss: int) -> Intrinsics:
+def supersampled(K: ViewIntrinsics, ss: int) -> ViewIntrinsics:
     """The camera whose pixel grid puts ``ss x ss`` evenly spaced samples inside each pixel of ``K``."""
-    return Intrinsics(K.width * ss, K.height * ss, K.fx * ss, K.fy * ss, K.cx * ss, K.cy * ss)
+    return ViewIntrinsics(
+        fx=K.fx * ss, fy=K.fy * ss, cx=K.cx * ss, cy=K.cy * ss, width=K.width * ss, height=K.height * ss
+    )

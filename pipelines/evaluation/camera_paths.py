@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from components.data.cameras import Cameras
+from components.data.cameras import Cameras, ViewIntrinsics
 from components.export.quaternions import matrix_to_quat, quat_to_matrix, slerp
 
 
@@ -31,12 +31,7 @@ class CameraPath:
     """F poses sharing one set of intrinsics (a video needs one frame size)."""
 
     camtoworlds: np.ndarray  # [F, 4, 4]
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
+    intrinsics: ViewIntrinsics
 
     def __len__(self) -> int:
         return self.camtoworlds.shape[0]
@@ -45,23 +40,23 @@ class CameraPath:
         def one(v: float, dtype: torch.dtype = torch.float32) -> torch.Tensor:
             return torch.tensor([v], dtype=dtype, device=device)
 
+        k = self.intrinsics
         return Cameras(
             camtoworlds=torch.from_numpy(self.camtoworlds[i : i + 1]).float().to(device),
-            fx=one(self.fx),
-            fy=one(self.fy),
-            cx=one(self.cx),
-            cy=one(self.cy),
-            width=one(self.width, torch.int64),
-            height=one(self.height, torch.int64),
+            fx=one(k.fx),
+            fy=one(k.fy),
+            cx=one(k.cx),
+            cy=one(k.cy),
+            width=one(k.width, torch.int64),
+            height=one(k.height, torch.int64),
         )
 
     def to_dict(self, fps: float) -> dict:
+        k = self.intrinsics
         return {
             "convention": "camera-to-world, OpenCV axes (x right, y down, z forward), run's normalised world",
             "fps": fps,
-            "intrinsics": {
-                "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "w": self.width, "h": self.height,
-            },
+            "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height},
             "camtoworlds": [m.tolist() for m in self.camtoworlds],
         }  # fmt: skip
 
@@ -233,12 +228,19 @@ def orbit_path(c2w: np.ndarray, num_frames: int, center: np.ndarray | None = Non
     return out
 
 
-def reference_intrinsics(cams: Cameras, indices: list[int]) -> tuple[float, float, float, float, int, int]:
-    """fx, fy, cx, cy, width, height of the view with the most common size among ``indices``."""
+def reference_intrinsics(cams: Cameras, indices: list[int]) -> ViewIntrinsics:
+    """The intrinsics of the view with the most common size among ``indices``."""
     sizes = [(int(cams.width[i]), int(cams.height[i])) for i in indices]
     common = max(set(sizes), key=lambda s: (sizes.count(s), s))
     i = indices[sizes.index(common)]
-    return float(cams.fx[i]), float(cams.fy[i]), float(cams.cx[i]), float(cams.cy[i]), common[0], common[1]
+    return ViewIntrinsics(
+        fx=float(cams.fx[i]),
+        fy=float(cams.fy[i]),
+        cx=float(cams.cx[i]),
+        cy=float(cams.cy[i]),
+        width=common[0],
+        height=common[1],
+    )
 
 
 def make_path(kind: str, cams: Cameras, indices: list[int], num_frames: int) -> CameraPath:
@@ -250,4 +252,4 @@ def make_path(kind: str, cams: Cameras, indices: list[int], num_frames: int) -> 
         poses = orbit_path(c2w, num_frames)
     else:
         raise ValueError(f"unknown camera path {kind!r}; use interpolate or orbit")
-    return CameraPath(poses, *reference_intrinsics(cams, indices))
+    return CameraPath(poses, reference_intrinsics(cams, indices))

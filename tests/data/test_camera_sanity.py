@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from components.data.cameras import ViewIntrinsics
 from components.data.sanity import (
     MIN_IMAGE_SIDE,
     check_camera_spread,
@@ -22,16 +24,16 @@ from tridehaze_plugin.errors import DataError
 def _frame(i: int, x: float = 0.0, **kw) -> Frame:
     c2w = np.eye(4)
     c2w[0, 3] = x
-    return Frame(name=f"{i}.png", image_path=Path(f"/d/{i}.png"), c2w=c2w, fx=50.0, fy=50.0, cx=32.0,
-                 cy=24.0, width=64, height=48, **kw)  # fmt: skip
+    k = ViewIntrinsics(fx=50.0, fy=50.0, cx=32.0, cy=24.0, width=64, height=48)
+    return Frame(name=f"{i}.png", image_path=Path(f"/d/{i}.png"), c2w=c2w, intrinsics=k, **kw)
 
 
 def _look(frames: list[Frame], points: np.ndarray) -> None:
     check_seed_visibility(
         points,
         np.stack([f.c2w for f in frames]),
-        np.array([[f.fx, f.fy, f.cx, f.cy] for f in frames]),
-        np.array([[f.width, f.height] for f in frames], dtype=float),
+        np.array([[f.intrinsics.fx, f.intrinsics.fy, f.intrinsics.cx, f.intrinsics.cy] for f in frames]),
+        np.array([[f.intrinsics.width, f.intrinsics.height] for f in frames], dtype=float),
         [f.name for f in frames],
         Path("/d"),
     )
@@ -67,7 +69,7 @@ def test_views_that_see_no_point_are_warned_about_and_none_at_all_refused():
 
 def test_principal_points_outside_the_image_are_warned_about():
     off = _frame(1)
-    off.cx = -500.0
+    off.intrinsics = replace(off.intrinsics, cx=-500.0)
     with pytest.warns(
         DataWarning, match="1 view\\(s\\) have their principal point outside the image \\(1.png"
     ):

@@ -164,4 +164,4 @@ def test_colmap_distortion_models_map_to_opencv(tmp_path, model, params, dist):
     write_colmap(root, n=2, model=model, params=params)
     frame = ColmapParser.parse(root, None).frames[0]
     assert frame.camera_model == model and frame.distortion == pytest.approx(dist)
-    assert (frame.fx, frame.cx, frame.cy) == (30.0, 20.0, 15.0)
+    assert (frame.intrinsics.fx, frame.intrinsics.cx, frame.intrinsics.cy) == (30.0, 20.0, 15.0)

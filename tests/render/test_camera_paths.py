@@ -107,6 +107,6 @@ def test_make_path_uses_the_most_common_image_size():
         torch.tensor([40, 40, 42, 40, 42]), torch.tensor([30, 30, 31, 30, 31]),
     )  # fmt: skip
     path = make_path("orbit", cams, [0, 1, 2, 3, 4], 8)
-    assert (path.width, path.height) == (40, 30) and len(path) == 8
+    assert (path.intrinsics.width, path.intrinsics.height) == (40, 30) and len(path) == 8
     cam = path.camera(3)
     assert cam.camtoworlds.shape == (1, 4, 4) and int(cam.width[0]) == 40

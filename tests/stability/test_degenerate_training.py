@@ -30,12 +30,13 @@ import pytest
 import torch
 from rich.console import Console
 
+from components.data.cameras import ViewIntrinsics
 from components.rasterizers.base import resolve_backend
 from components.synth.generate import camera_poses, write_view
 from components.synth.layouts import make_layout
 from components.synth.medium import make_medium
 from components.synth.render import apply_medium, render_clean
-from components.synth.trajectories import Intrinsics, look_at
+from components.synth.trajectories import look_at
 from components.synth.writer import frame_entry, write_json
 from pipelines.engine.optimizers import Optimizers
 from pipelines.engine.trainer import Trainer
@@ -60,7 +61,7 @@ def _sky_views(root: Path, layout_name: str, haze: str, seed: int, n: int) -> li
     layout = make_layout(layout_name, seed)
     medium = make_medium(haze, layout.medium_context(), seed)
     _, poses = camera_poses(layout, "auto", TINY["num_views"])
-    K = Intrinsics.from_fov(TINY["width"], TINY["height"], 60.0)
+    K = ViewIntrinsics.from_fov(TINY["width"], TINY["height"], 60.0)
     names = []
     for j, c2w in enumerate(poses[:n]):
         eye = c2w[:3, 3]

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from components.data.cameras import ViewIntrinsics
 from components.synth.generate import camera_poses
 from components.synth.geometry import Box, Cylinder, Plane, SceneGeometry, Sphere, trace, trace_grid
 from components.synth.layouts import LAYOUTS, make_layout
-from components.synth.trajectories import Intrinsics, camera_rays, look_at, supersampled
+from components.synth.trajectories import camera_rays, look_at, supersampled
 
 
 def _ray(o, d):
@@ -60,7 +61,7 @@ def test_nearest_of_several():
 def test_culled_grid_trace_equals_brute_force(layout):
     """Per-primitive rectangle culling must never drop a hit (the rectangles are conservative)."""
     lay = make_layout(layout, seed=1)
-    K = supersampled(Intrinsics.from_fov(40, 30, 70.0), 2)
+    K = supersampled(ViewIntrinsics.from_fov(40, 30, 70.0), 2)
     for c2w in camera_poses(lay, "auto", 4)[1]:
         o, d, _ = camera_rays(c2w, K)
         fast = trace_grid(lay.geometry, o, d, c2w, K.fx, K.fy, K.cx, K.cy)
@@ -71,7 +72,7 @@ def test_culled_grid_trace_equals_brute_force(layout):
 
 
 def test_camera_rays_follow_opencv_axes():
-    K = Intrinsics.from_fov(41, 31, 60.0)
+    K = ViewIntrinsics.from_fov(41, 31, 60.0)
     c2w = look_at(np.array([0.0, -5.0, 1.0]), np.array([0.0, 0.0, 1.0]))
     o, d, dz = camera_rays(c2w, K)
     assert d[15, 20].tolist() == pytest.approx([0, 1, 0], abs=1e-6)  # centre pixel looks forward

@@ -204,7 +204,7 @@ def render_path(args: RenderArgs, run, wanted: list[str], indices: list[int]) ->
         shutil.rmtree(stage, ignore_errors=True)
     secs = time.perf_counter() - t0
     print(
-        f"wrote {len(path)} frames ({path.width}x{path.height}, {args.fps:g} fps, {args.path}) x "
+        f"wrote {len(path)} frames ({path.intrinsics.width}x{path.intrinsics.height}, {args.fps:g} fps, {args.path}) x "
         f"{len(wanted)} output(s) to {out_dir}: {', '.join(f'{n}.mp4' for n in wanted)} ({secs:.1f} s)"
     )
 

@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from components.data.cameras import opengl_to_opencv
+from components.data.cameras import ViewIntrinsics, opengl_to_opencv
 from components.data.config import DataConfig
 from components.data.images import image_size
 from components.data.scene import ParsedScene
@@ -130,7 +130,8 @@ SUPPORTED_JSON_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV")
 
 def json_intrinsics(meta: dict[str, Any], image_path: Path, where: str) -> dict[str, Any]:
     """Intrinsics from merged global + per-frame keys (``fl_x fl_y cx cy w h``, ``camera_angle_x``,
-    ``k1 k2 k3 k4 p1 p2``, ``camera_model``) as :class:`Frame` keyword arguments.
+    ``k1 k2 k3 k4 p1 p2``, ``camera_model``) as :class:`Frame` keyword arguments: ``intrinsics``
+    (a :class:`ViewIntrinsics`), ``camera_model`` and ``distortion``.
 
     Width and height missing from the file are read from the image header; when the image does not
     exist they are left 0, and the loader reports the missing image (or drops it) before it looks
@@ -173,13 +174,16 @@ def json_intrinsics(meta: dict[str, Any], image_path: Path, where: str) -> dict[
         )
     dist = (k["k1"], k["k2"], k["p1"], k["p2"], k["k3"])
     has_dist = any(d != 0.0 for d in dist)
+    intrinsics = ViewIntrinsics(
+        fx=float(fx),
+        fy=float(fy),
+        cx=float(w / 2.0 if cx is None else cx),
+        cy=float(h / 2.0 if cy is None else cy),
+        width=int(round(w)),
+        height=int(round(h)),
+    )
     return {
-        "fx": float(fx),
-        "fy": float(fy),
-        "cx": float(w / 2.0 if cx is None else cx),
-        "cy": float(h / 2.0 if cy is None else cy),
-        "width": int(round(w)),
-        "height": int(round(h)),
+        "intrinsics": intrinsics,
         "camera_model": "OPENCV" if has_dist else "PINHOLE",
         "distortion": dist if has_dist else (),
     }

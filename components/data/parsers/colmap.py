@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from components.data.cameras import ViewIntrinsics
 from components.data.config import DataConfig
 from components.data.images import is_image_file
 from components.data.parsers.base import DataParser
@@ -112,7 +113,8 @@ def _read_model(sparse: Path):  # noqa: ANN202 - pycolmap.Reconstruction (import
 
 
 def _camera(cam, sparse: Path) -> dict:
-    """COLMAP camera -> Frame intrinsics kwargs (OpenCV-order distortion)."""
+    """COLMAP camera -> Frame keyword arguments ``intrinsics``, ``camera_model`` and ``distortion``
+    (OpenCV order)."""
     model = cam.model.name
     p = [float(v) for v in cam.params]
     if model == "PINHOLE":
@@ -138,12 +140,9 @@ def _camera(cam, sparse: Path) -> dict:
     if not any(d != 0.0 for d in dist):
         dist = ()
     return {
-        "fx": fx,
-        "fy": fy,
-        "cx": cx,
-        "cy": cy,
-        "width": int(cam.width),
-        "height": int(cam.height),
+        "intrinsics": ViewIntrinsics(
+            fx=fx, fy=fy, cx=cx, cy=cy, width=int(cam.width), height=int(cam.height)
+        ),
         "camera_model": model if dist else "PINHOLE",
         "distortion": dist,
     }
