@@ -18,8 +18,9 @@ from components.data.scene import DataWarning, Frame
 from tridehaze_plugin.errors import DataError, first_few
 
 MIN_IMAGE_SIDE = 8
-"""Smallest image side (pixels) training accepts after ``--downscale``: below it the SSIM window,
-the dark-channel patch and the medium's ray grid no longer fit in an image."""
+"""Smallest image side (pixels) training accepts after ``--downscale``: below it the image holds too
+little for SSIM's window, the dark-channel patch and the medium's ray grid to mean much (they
+shrink to fit, so photos that small on disk still train)."""
 FAR_CAMERA = 1e4
 """A camera farther from the cameras' median centre than this many times their median distance
 from it is a broken pose, not part of the capture."""

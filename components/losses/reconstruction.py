@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated
 
-import kornia
 from torch import Tensor
 
+from components.metrics.ssim import ssim_bchw
 from tridehaze_plugin.config import ComponentConfig, Range, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY, register
@@ -22,7 +22,7 @@ class ReconstructionLossConfig(ComponentConfig):
     lambda_ssim: Annotated[float, Range(0.0, 1.0)] = 0.2
     """Weight of the (1 - SSIM) term; the L1 term gets (1 - lambda_ssim)."""
     ssim_window: Annotated[int, Range(3, 63, odd=True)] = 11
-    """Gaussian window size of SSIM (odd)."""
+    """Gaussian window size of SSIM (odd; shrunk to fit images with a side of 5 pixels or less)."""
 
     def check_values(self, prefix: str = "--pipeline.loss.") -> None:
         if not 0.0 <= self.lambda_ssim <= 1.0:
@@ -47,9 +47,7 @@ class L1SSIMLoss:
         if lam <= 0:
             return l1, {"l1": l1.detach()}
         # kornia wants [B, C, H, W]
-        ssim = kornia.metrics.ssim(
-            pred.permute(0, 3, 1, 2), target.permute(0, 3, 1, 2), self.config.ssim_window
-        ).mean()
+        ssim = ssim_bchw(pred.permute(0, 3, 1, 2), target.permute(0, 3, 1, 2), self.config.ssim_window).mean()
         loss = (1 - lam) * l1 + lam * (1 - ssim)
         return loss, {"l1": l1.detach(), "ssim": ssim.detach()}
 

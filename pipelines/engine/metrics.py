@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import kornia
 import torch
 from torch import Tensor
+
+from components.metrics.ssim import ssim_bchw
 
 
 def psnr(pred: Tensor, target: Tensor) -> Tensor:
@@ -14,10 +15,11 @@ def psnr(pred: Tensor, target: Tensor) -> Tensor:
 
 
 def ssim_map(pred: Tensor, target: Tensor) -> Tensor:
-    """Per-pixel SSIM [H, W] (11x11 Gaussian window, channel mean) of [H, W, 3] images in [0, 1]."""
+    """Per-pixel SSIM [H, W] (11x11 Gaussian window, smaller on tiny images; channel mean) of
+    [H, W, 3] images in [0, 1]."""
     a = pred.clamp(0, 1).permute(2, 0, 1)[None]  # [1, 3, H, W]
     b = target.permute(2, 0, 1)[None]
-    return kornia.metrics.ssim(a, b, 11)[0].mean(0)
+    return ssim_bchw(a, b, 11)[0].mean(0)
 
 
 def ssim(pred: Tensor, target: Tensor) -> Tensor:

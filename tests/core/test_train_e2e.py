@@ -167,3 +167,20 @@ def test_render_writes_every_view_of_the_split(tiny_scene, tmp_path, device):
         render_main(
             ["--load-config", str(result.run_dir / "config.yml"), "--device", str(device), "--outputs", "sky"]
         )
+
+
+def test_native_tiny_images_train_and_evaluate(tmp_path, device):
+    """Photos 5x4 pixels on disk (accepted: only --downscale may not go below 8 pixels): the SSIM
+    window, the dark channel and the medium fit themselves to the image."""
+    from tests.tiny_scenes import tiny_hazy_scene
+
+    scene = tiny_hazy_scene(tmp_path / "tiny", width=5, height=4, num_views=6, test_every=3)
+    cfg = parse_args(["tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / "out"), "--device",
+                      str(device), "--max-steps", "3", "--pipeline.rasterizer.backend", "torch", "--timestamp", "run",
+                      "--cache-dir", str(tmp_path / "cache")])  # fmt: skip
+    metrics = Trainer(cfg).train().metrics
+    assert (
+        metrics["steps"] == 3
+        and np.isfinite(metrics["restoration_psnr"])
+        and np.isfinite(metrics["train_ssim"])
+    )
