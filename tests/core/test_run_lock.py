@@ -131,3 +131,43 @@ def test_checkpoints_on_a_time_budget(scene, tmp_path, monkeypatch):
     assert [json.loads(x)["step"] for x in (run / "logs" / "checkpoints.jsonl").read_text().splitlines()] == [
         6
     ]
+
+
+class _FakeMsvcrt:
+    """msvcrt.locking's semantics for one process: a byte range locked through one descriptor of a
+    file cannot be locked through another until unlocked (Windows is not available here)."""
+
+    LK_NBLCK, LK_UNLCK = 2, 0
+
+    def __init__(self) -> None:
+        self.held: dict[tuple[int, int], int] = {}
+
+    def locking(self, fd: int, mode: int, nbytes: int) -> None:
+        st = os.fstat(fd)
+        key = (st.st_dev, st.st_ino)
+        if mode == self.LK_NBLCK:
+            if key in self.held and self.held[key] != fd:
+                raise OSError(36, "Resource deadlock avoided")
+            self.held[key] = fd
+        elif self.held.get(key) == fd:
+            del self.held[key]
+
+
+def test_windows_locks_a_file_in_the_run_folder(tmp_path, monkeypatch):
+    """Where there is no flock (Windows) the lock is msvcrt.locking on .td-run.lock (simulated)."""
+    from pipelines.engine import run_lock
+
+    fake = _FakeMsvcrt()
+    monkeypatch.setattr(run_lock, "fcntl", None)
+    monkeypatch.setattr(run_lock, "msvcrt", fake)
+    run = tmp_path / "run"
+    run.mkdir()
+    first = run_lock.RunLock(run).acquire()
+    assert (run / run_lock.WINDOWS_LOCK_FILE).is_file() and fake.held
+    with pytest.raises(UserError, match=BUSY) as err:
+        run_lock.RunLock(run).acquire()
+    assert str(run) in str(err.value)
+    first.release()
+    assert not fake.held
+    again = run_lock.RunLock(run).acquire()  # free once the first writer let go
+    again.release()
