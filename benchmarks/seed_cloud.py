@@ -97,11 +97,12 @@ def run_sfm(scene: Path, work: Path, enhance: str) -> Path:
     return out / "sparse" / "0"
 
 
-def align(rec, views: dict[str, dict]) -> tuple[float, np.ndarray, np.ndarray]:
+def align(rec, views: dict[str, dict]) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Similarity from the SfM frame to the true one, from camera centres *and* orientations: a
     walk's centres are nearly collinear, which leaves a centres-only fit free to roll about the
     line. Scale first from the centres' spreads, then one Umeyama fit on the centres plus a point
-    along each camera axis (at a tenth of the true extent, the same length in both frames)."""
+    along each camera axis (at a tenth of the true extent, the same length in both frames).
+    Returns (s, R, t) and each registered camera's centre error after the fit [N]."""
     est_c, ref_c, est_r, ref_r = [], [], [], []
     for im in rec.images.values():
         m = np.asarray(im.cam_from_world().matrix())  # [3, 4]
@@ -117,7 +118,8 @@ def align(rec, views: dict[str, dict]) -> tuple[float, np.ndarray, np.ndarray]:
     for k in range(3):
         src.append(est_c + np.stack([r[k] for r in est_r]) * length / scale)  # row k of w2c = axis k
         dst.append(ref_c + np.stack([r[k] for r in ref_r]) * length)
-    return umeyama(np.concatenate(src), np.concatenate(dst))
+    s, R, t = umeyama(np.concatenate(src), np.concatenate(dst))
+    return s, R, t, np.linalg.norm(est_c @ (s * R).T + t - ref_c, axis=1)
 
 
 def sfm_observations(model: Path, views: dict[str, dict]) -> tuple[dict, int]:
@@ -127,13 +129,7 @@ def sfm_observations(model: Path, views: dict[str, dict]) -> tuple[dict, int]:
     rec = pycolmap.Reconstruction(str(model))
     if len(rec.images) < MIN_REGISTERED * len(views):
         raise ValueError(f"only {len(rec.images)} of {len(views)} views registered")
-    s, R, t = align(rec, views)
-    err, extent = [], []
-    for im in rec.images.values():
-        m = np.asarray(im.cam_from_world().matrix())  # [3, 4]
-        err.append(
-            np.linalg.norm(s * R @ (-m[:, :3].T @ m[:, 3]) + t - np.linalg.inv(views[im.name]["w2c"])[:3, 3])
-        )
+    s, R, t, err = align(rec, views)
     centres = np.stack([np.linalg.inv(v["w2c"])[:3, 3] for v in views.values()])
     extent = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
     if np.median(err) > BAD_CAMERAS * extent:

@@ -75,7 +75,7 @@ class SceneConfig:
     """Multiplies the preset's extinction (2 = twice as thick)."""
     seed_cloud: Literal["sfm", "clean"] = "sfm"
     """Seed points as SfM on hazy photos gives them (sparse, where the hazy view has contrast, depth
-    noise growing with distance, 7 % outliers; measured, docs/synth.md), or ``clean``: true surface
+    noise growing with distance, 5 % outliers; measured, docs/synth.md), or ``clean``: true surface
     points drawn uniformly with only ``--point-noise`` jitter (a flattering prior, for comparison)."""
     num_points: int | None = None
     """Seed points over the train views (None: the cloud's own default, sfm 30 per train view and

@@ -179,7 +179,7 @@ def evaluate(
         "binned": binned.report(bin_source),
         "medium": recovery.result(),
         "baselines": {k: _mean(_column(per_view, "baselines", k)) for k in BASELINES}
-        if _column(per_view, "baselines")
+        if any("baselines" in row for row in per_view)
         else None,
         "per_view": per_view,
     }

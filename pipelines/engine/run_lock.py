@@ -35,7 +35,6 @@ class RunLock:
     def __init__(self, run_dir: Path) -> None:
         self.run_dir = Path(run_dir)
         self._fd: int | None = None
-        self._windows = False
 
     def acquire(self) -> RunLock:
         if self._fd is not None:
@@ -44,7 +43,6 @@ class RunLock:
             self._fd = self._flock()
         elif msvcrt is not None:
             self._fd = self._msvcrt_lock()
-            self._windows = True
         return self
 
     def _flock(self) -> int:
@@ -82,7 +80,7 @@ class RunLock:
     def release(self) -> None:
         if self._fd is None:
             return
-        if self._windows:
+        if fcntl is None:  # the lock was msvcrt's (acquire takes flock wherever it exists)
             try:
                 os.lseek(self._fd, 0, os.SEEK_SET)
                 msvcrt.locking(self._fd, msvcrt.LK_UNLCK, 1)
