@@ -92,12 +92,21 @@ def dehaze(image: np.ndarray, result: DCPResult, t0: float = 0.05) -> np.ndarray
     return np.clip((img - a) / t + a, 0.0, 1.0).astype(np.float32)
 
 
-def dcp_transmittance_loss(T_hat: Tensor, T_dcp: Tensor, mask: Tensor | None = None) -> Tensor:  # noqa: N803
+def dcp_transmittance_loss(
+    T_hat: Tensor,  # noqa: N803
+    T_dcp: Tensor,  # noqa: N803
+    mask: Tensor | None = None,
+    lower_bound: bool = False,
+) -> Tensor:
     """Mean squared error between the rendered transmittance and the DCP estimate, both [H, W].
 
+    ``lower_bound``: penalise only T below the estimate. With the true airlight and omega = 1 the
+    dark channel can only under-estimate t (min(I / A) = t min(J / A) + 1 - t >= 1 - t), and it
+    does so wherever the clean patch has no dark pixel (bright or textured surfaces, indoors).
     The mask is a weight (no boolean indexing, so no host sync); an empty mask gives 0.
     """
-    diff = (T_hat - T_dcp.to(T_hat)).square()  # [H, W]
+    diff = T_dcp.to(T_hat) - T_hat  # [H, W]
+    diff = (diff.clamp_min(0.0) if lower_bound else diff).square()
     if mask is None:
         return diff.mean()
     w = mask.to(diff.dtype)

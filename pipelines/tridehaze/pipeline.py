@@ -93,6 +93,9 @@ class GaussianPipelineConfig(PipelineConfig):
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
     lambda_dcp: Annotated[float, NonNegative] = 0.0
     """Weight of the dark-channel transmittance loss ||T - T_dcp||^2 (Stage I only); 0 = off."""
+    dcp_bound: Literal["two-sided", "lower"] = "two-sided"
+    """How the dark channel constrains T: ``two-sided`` pulls T to it (the paper's MSE); ``lower``
+    penalises only T below it, since the prior under-estimates t on surfaces without dark pixels."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
@@ -292,7 +295,7 @@ class GaussianPipeline(Pipeline):
         if med is not None:
             T = med.transmittance[..., 0]  # [H, W]
             if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
-                dcp = dcp_transmittance_loss(T, prior.t_dcp)
+                dcp = dcp_transmittance_loss(T, prior.t_dcp, lower_bound=cfg.dcp_bound == "lower")
                 loss = loss + cfg.lambda_dcp * dcp
                 metrics["dcp"] = dcp.detach()
             reg = self.medium.regularizer() if self._medium_trainable(step) else None

@@ -88,3 +88,27 @@ def test_transmittance_loss(device):
     mask[0, 0] = True
     assert dcp_transmittance_loss(t, target, mask).item() == pytest.approx(t[0, 0].item() ** 2)
     assert dcp_transmittance_loss(t, target, torch.zeros_like(mask)).item() == 0.0
+
+
+def test_transmittance_lower_bound_penalises_only_t_below_the_estimate(device):
+    t = torch.tensor([[0.2, 0.5], [0.8, 0.5]], device=device, requires_grad=True)
+    t_dcp = torch.full((2, 2), 0.5, device=device)
+    loss = dcp_transmittance_loss(t, t_dcp, lower_bound=True)
+    assert loss.item() == pytest.approx(0.3**2 / 4)  # only the 0.2 pixel is below the bound
+    loss.backward()
+    assert t.grad[0, 0].item() < 0.0  # pushed up towards the bound
+    assert t.grad[0, 1].item() == 0.0 and t.grad[1, 0].item() == 0.0 and t.grad[1, 1].item() == 0.0
+
+
+def test_dark_channel_under_estimates_transmittance_of_a_bright_surface():
+    """Why ``lower_bound`` exists: a haze-free patch without dark pixels reads as hazy."""
+    a = np.array([0.9, 0.9, 0.9], np.float32)
+    i = np.empty((40, 40, 3), np.float32)
+    i[:20] = a  # sky: pure airlight, so the estimate finds the true airlight
+    t_true = 0.8
+    i[20:] = 0.6 * t_true + a * (1 - t_true)  # bright grey wall (no channel near 0), thin haze
+    est = estimate_dcp(i, guided_radius=0)
+    np.testing.assert_allclose(est.airlight, a, atol=1e-6)
+    wall_t = est.transmittance[30:].mean()  # away from the min filter's reach into the sky
+    assert wall_t == pytest.approx(1 - 0.95 * (0.6 * t_true + 0.9 * (1 - t_true)) / 0.9, abs=1e-5)
+    assert wall_t < t_true - 0.4
