@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 import torch
 from torch import Tensor
@@ -56,6 +56,13 @@ class CompositeConfig:
     """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
     t_floor: Annotated[float, Range(0.0, 0.5, lo_open=True)] = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
+    background: Literal["far", "infinite"] = "far"
+    """What a ray sees where the Gaussians do not cover it (sky, far background): ``far`` ends it
+    at the far bound, so the clean render's background shows through exp(-beta * far) of haze;
+    ``infinite`` continues it past the far bound through the boundary's medium to infinity (T = 0,
+    in-scattering S + T L at the far end), the pixel's uncovered share is pure in-scattering, and
+    the clean render shows that light there (the sky behind haze is unobservable; the dark
+    channel's J = A convention)."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -66,9 +73,29 @@ class CompositeConfig:
 class MediumRender:
     """Per-pixel medium terms of one view."""
 
-    transmittance: Tensor  # [H, W, 1] in [t_floor, 1]
+    transmittance: Tensor  # [H, W, 1] in [t_floor, 1]: multiplies the clean render in I = J*T + S
     scattering: Tensor  # [H, W, 3] >= 0
     end_depth: Tensor  # [H, W, 1] z-depth the rays were marched to
+    coverage: Tensor | None = None
+    """[H, W, 1] the Gaussians' alpha when the uncovered share of each pixel sees the medium to
+    infinity (``background infinite``): the clean render is then premultiplied (no background
+    colour) and T is the transmittance to the covered surface; None: rays end at ``end_depth``."""
+    sky: Tensor | None = None
+    """[H, W, 3] light arriving from infinity along the ray (with ``coverage``; only marched where
+    the coverage is below 1, and weighted by 1 - coverage wherever it is used)."""
+
+    def pixel_transmittance(self) -> Tensor:
+        """[H, W, 1] the share of the pixel's clean radiance that reaches the camera (0 for sky)."""
+        if self.coverage is None:
+            return self.transmittance
+        return self.transmittance * self.coverage
+
+    def clean_with_sky(self, clean: Tensor) -> Tensor:
+        """The premultiplied clean render [H, W, 3] with the uncovered share filled by the sky light
+        (unchanged when rays end at the far bound)."""
+        if self.coverage is None or self.sky is None:
+            return clean
+        return clean + (1.0 - self.coverage) * self.sky
 
 
 def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
@@ -139,13 +166,21 @@ class MediumCompositor:
         """camera: [1]; depth, alpha: [H, W, 1] from the clean render."""
         H, W = depth.shape[:2]
         far = self.far_bound(field)
-        z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
+        infinite = self.config.background == "infinite"
+        if infinite:  # the covered share ends at the surface; the rest is read at the far bound
+            a = alpha.detach().clamp(0.0, 1.0)[..., 0]  # [H, W]
+            d = depth if self.config.depth_gradient else depth.detach()
+            z = d[..., 0].clamp(min=1e-6, max=far)  # [H, W]
+            z_rays = torch.where(a < 1.0 - 1e-3, torch.full_like(z, far), z)  # [H, W]
+        else:
+            z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
+            z_rays = z
         if not field.has_medium:
             return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
         s, K = self.stride_for(H, W), self.config.num_samples
         h, w = math.ceil(H / s), math.ceil(W / s)
         # --- coarse rays: block centres, marched to the farthest end depth they serve
-        zpad = F.pad(z[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
+        zpad = F.pad(z_rays[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
         zfar = zpad  # [1, 1, h, w]; stride 1: each ray ends at its own pixel's depth
         if s > 1:  # the block's farthest depth, then one block further for the bilinear neighbours
             zfar = F.max_pool2d(F.max_pool2d(zpad, s), 3, stride=1, padding=1)
@@ -185,23 +220,35 @@ class MediumCompositor:
         pix_len = pix_dirs.norm(dim=-1).reshape(1, -1)  # [1, H*W] path length per unit z
         ray_len = step_len.reshape(-1)[rays]  # [4, H*W]
         zfar_r = zfar.reshape(-1)[rays]  # [4, H*W]
-        zq = z.reshape(1, -1)  # [1, H*W]
-        pos = (zq / zfar_r.clamp_min(1e-12)).clamp(0, 1) * K  # [4, H*W] position in intervals
-        k = pos.detach().floor().clamp(max=K - 1).long()
-        f = pos - k.to(pos)  # fraction of interval k covered
-        row = table.index_select(0, (rays * (K + 1) + k).reshape(-1)).reshape(4, H * W, 9)
-        Tau_k, tau_k, T_k, S_k, L_k = row[..., 0], row[..., 1], row[..., 2], row[..., 3:6], row[..., 6:9]
-        t_ray = Tau_k + f * tau_k  # [4, H*W] optical depth along the coarse ray to z
-        s_ray = S_k + (T_k * -torch.expm1(-f * tau_k))[..., None] * L_k  # [4, H*W, 3]
         r = pix_len / ray_len  # ~1: obliquity of the pixel vs the coarse ray
-        t_pix = t_ray * r
-        # S is a light-weighted scattered fraction 1 - T: keep the weighting, rescale the fraction
-        den = -torch.expm1(-t_ray)
-        frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
-        tau_p = (wgt * t_pix).sum(0)  # [H*W]
-        S_p = ((wgt * frac)[..., None] * s_ray).sum(0)  # [H*W, 3]
+
+        def read(zq: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+            """Optical depth [H*W], scattering [H*W, 3] and the last light [H*W, 3] to z ``zq`` [1, H*W]."""
+            pos = (zq / zfar_r.clamp_min(1e-12)).clamp(0, 1) * K  # [4, H*W] position in intervals
+            k = pos.detach().floor().clamp(max=K - 1).long()
+            f = pos - k.to(pos)  # fraction of interval k covered
+            row = table.index_select(0, (rays * (K + 1) + k).reshape(-1)).reshape(4, H * W, 9)
+            Tau_k, tau_k, T_k, S_k, L_k = row[..., 0], row[..., 1], row[..., 2], row[..., 3:6], row[..., 6:9]
+            t_ray = Tau_k + f * tau_k  # [4, H*W] optical depth along the coarse ray to z
+            s_ray = S_k + (T_k * -torch.expm1(-f * tau_k))[..., None] * L_k  # [4, H*W, 3]
+            t_pix = t_ray * r
+            # S is a light-weighted scattered fraction 1 - T: keep the weighting, rescale the fraction
+            den = -torch.expm1(-t_ray)
+            frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
+            light = (wgt[..., None] * L_k).sum(0)  # [H*W, 3]
+            return (wgt * t_pix).sum(0), ((wgt * frac)[..., None] * s_ray).sum(0), light
+
+        tau_p, S_p, _ = read(z.reshape(1, -1))  # [H*W], [H*W, 3]
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        return MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+        if not infinite:
+            return MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+        # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
+        # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
+        tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1))
+        sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
+        cover = a[..., None]  # [H, W, 1]
+        S = cover * S_p.reshape(H, W, 3) + (1.0 - cover) * sky
+        return MediumRender(T, S, z[..., None], coverage=cover, sky=sky)
 
 
 def homogeneous_along_rays(

@@ -277,9 +277,11 @@ class GaussianPipeline(Pipeline):
         with record_function("td.medium"):
             med = self._medium(cam, out)
         with record_function("td.composite+loss"):
-            hazy = (
-                clean if med is None else composite(self.policy.apply(clean, med.transmittance, stage), med)
-            )
+            if med is None:
+                hazy = clean
+            else:
+                clean = self._surface_colour(clean, out, med, bg)
+                hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
             loss, terms = self.loss_fn(hazy, target)
         self._photometric = loss.detach()
         metrics.update({k: v.detach() for k, v in terms.items()})
@@ -293,7 +295,7 @@ class GaussianPipeline(Pipeline):
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
         if med is not None:
-            T = med.transmittance[..., 0]  # [H, W]
+            T = med.pixel_transmittance()[..., 0]  # [H, W]
             if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
                 dcp = dcp_transmittance_loss(T, prior.t_dcp, lower_bound=cfg.dcp_bound == "lower")
                 loss = loss + cfg.lambda_dcp * dcp
@@ -306,6 +308,14 @@ class GaussianPipeline(Pipeline):
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
+
+    @staticmethod
+    def _surface_colour(clean: Tensor, out: RasterizeOutput, med: MediumRender, background: Tensor) -> Tensor:
+        """The clean render the medium composites: without the background colour where the
+        uncovered share of a pixel sees the medium to infinity (``composite.background infinite``)."""
+        if med.coverage is None:
+            return clean
+        return clean - (1.0 - out.alpha[0]) * background  # [H, W, 3] premultiplied
 
     def _densify_weight(self, out: RasterizeOutput, med: MediumRender | None, stage: int) -> Tensor | None:
         """clamp(T, t_min) at each Gaussian's projected centre while compensation is on."""
@@ -351,8 +361,10 @@ class GaussianPipeline(Pipeline):
             S = torch.zeros_like(clean)
             hazy = clean
         else:
-            T, S = med.transmittance, med.scattering
-            hazy = composite(clean, med)
+            surface = self._surface_colour(clean, out, med, self.background)
+            T, S = med.pixel_transmittance(), med.scattering
+            hazy = composite(surface, med)
+            clean = med.clean_with_sky(surface)
         return {
             "clean": clean.clamp(0, 1),
             "hazy": hazy.clamp(0, 1),

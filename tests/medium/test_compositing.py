@@ -4,6 +4,7 @@ per-pixel depth edges, and the extremes (no haze, opaque haze)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -169,3 +170,58 @@ def test_none_medium_and_homogeneous_helper(device):
     torch.testing.assert_close(
         hom.scattering, 0.6 * (1 - expect)[..., None].expand(-1, -1, 3), rtol=0, atol=2e-6
     )
+
+
+@pytest.mark.parametrize("stride", [1, 4])
+def test_infinite_background_sees_the_medium_to_infinity(device, stride):
+    """Uncovered pixels are pure in-scattering (T = 0, S = L in a homogeneous medium); covered
+    pixels match the ``far`` mode exactly; a half-covered pixel is the alpha blend of the two."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4, b1=0.0, light=0.6).to(device)
+    z = _depth_with_edges(device)
+    alpha = torch.ones_like(z)
+    alpha[:, :8] = 0.0  # sky
+    alpha[:, 8:10] = 0.5  # semi-transparent edge
+    inf = MediumCompositor(CompositeConfig(ray_stride=stride, num_samples=8, background="infinite"))
+    far = MediumCompositor(CompositeConfig(ray_stride=stride, num_samples=8))
+    med = inf(field, cam, z, alpha)
+    ref = far(field, cam, z, torch.ones_like(z))  # every ray ends at its surface
+    torch.testing.assert_close(med.transmittance[:, 10:], ref.transmittance[:, 10:], atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(med.scattering[:, 10:], ref.scattering[:, 10:], atol=1e-5, rtol=1e-5)
+    sky = med.scattering[:, :8]
+    torch.testing.assert_close(sky, torch.full_like(sky, 0.6), atol=1e-5, rtol=1e-5)
+    open_sky = med.sky[:, :10]  # only marched to infinity where the pixel is not fully covered
+    torch.testing.assert_close(open_sky, torch.full_like(open_sky, 0.6), atol=1e-5, rtol=1e-5)
+    T_pix = med.pixel_transmittance()
+    assert float(T_pix[:, :8].abs().max()) == 0.0
+    half = 0.5 * ref.scattering[:, 8:10] + 0.5 * 0.6
+    torch.testing.assert_close(med.scattering[:, 8:10], half, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(T_pix[:, 8:10], 0.5 * ref.transmittance[:, 8:10], atol=1e-5, rtol=1e-5)
+    # the clean render shows the sky light where nothing covers the pixel, the surface elsewhere
+    clean = torch.rand(H, W, 3, device=device) * alpha  # premultiplied
+    filled = med.clean_with_sky(clean)
+    torch.testing.assert_close(filled[:, :8], torch.full_like(filled[:, :8], 0.6), atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(filled[:, 10:], clean[:, 10:])
+    # and I = J*T + S holds with the premultiplied colour: the sky share adds light, hides nothing
+    hazy = composite(clean, med)
+    expect = clean * med.transmittance + alpha * ref.scattering + (1 - alpha) * 0.6
+    torch.testing.assert_close(hazy, expect, atol=1e-5, rtol=1e-5)
+
+
+def test_infinite_background_in_a_varying_medium_continues_with_the_boundary_value(device):
+    """Past the far bound the field keeps its last value: the sky light is S(far) + T(far) L_last."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.3, b1=0.2, light=0.5, view=0.2).to(device)
+    z = _depth_with_edges(device)
+    alpha = torch.zeros_like(z)
+    cfg = CompositeConfig(ray_stride=1, num_samples=8, background="infinite", far=6.0)
+    med = MediumCompositor(cfg)(field, cam, z, alpha)
+    to_far = MediumCompositor(replace(cfg, background="far"))(
+        field, cam, torch.full_like(z, 6.0), torch.ones_like(z)
+    )
+    assert float(med.pixel_transmittance().max()) == 0.0
+    # the sky is at least what the march to the far bound gathered, and adds light in proportion to T(far)
+    extra = med.sky - to_far.scattering  # [H, W, 3]
+    assert float(extra.min()) >= 0.0
+    assert float((extra / to_far.transmittance).max()) <= 1.0 + 1e-5  # L <= 1
+    assert float(extra.mean()) > 0.01
