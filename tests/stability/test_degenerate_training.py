@@ -136,7 +136,8 @@ def _check_one_step(trainer: Trainer) -> None:
     trainer.optimizers.zero_grad()
 
 
-def _assert_sound(trainer: Trainer, metrics: dict, skipped: int = 0) -> None:
+def _assert_sound(trainer: Trainer, metrics: dict, skipped: int = 0, open_sky: bool = False) -> None:
+    """``open_sky``: uncovered pixels see the medium to infinity, where T is exactly 0."""
     assert metrics.get("skipped_nonfinite_steps", 0) == skipped
     pipe = trainer.pipeline
     for name, p in pipe.named_parameters():
@@ -148,7 +149,7 @@ def _assert_sound(trainer: Trainer, metrics: dict, skipped: int = 0) -> None:
             assert t.dtype == torch.float32, name
             assert torch.isfinite(t).all(), f"non-finite {name} render of view {idx}"
         T = out["transmittance"]
-        assert float(T.min()) > 0 and float(T.max()) <= 1
+        assert (float(T.min()) >= 0 if open_sky else float(T.min()) > 0) and float(T.max()) <= 1
 
 
 # ------------------------------------------------------------------------- degenerate Gaussians
@@ -333,3 +334,25 @@ def test_nothing_rendered_in_any_view(scenes, tmp_path, device):
         torch.testing.assert_close(end, torch.full_like(end, far), rtol=1e-6, atol=0)
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
+
+
+def test_nothing_rendered_with_the_background_at_infinity(scenes, tmp_path, device):
+    """Every opacity 0 and ``background infinite``: every pixel is the medium's light from infinity,
+    the clean render shows that same light (no black background), T is 0, and training stays finite."""
+    trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.composite.background", "infinite")
+    pipe = trainer.pipeline
+    with torch.no_grad():
+        pipe.model.params["opacity_logits"].fill_(-120.0)
+    for idx in range(len(trainer.datamanager.scene)):
+        out = pipe.render(trainer.datamanager.camera(idx))
+        assert float(out["transmittance"].abs().max()) == 0.0
+        torch.testing.assert_close(out["clean"], out["hazy"], rtol=1e-5, atol=1e-5)
+        assert float(out["clean"].mean()) > 0.1  # the light of the haze, not the black background
+    _check_one_step(trainer)
+    _assert_sound(trainer, trainer.train().metrics, open_sky=True)
+
+
+def test_sky_views_train_with_the_background_at_infinity(scenes, tmp_path, device):
+    trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.composite.background", "infinite")
+    _check_one_step(trainer)
+    _assert_sound(trainer, trainer.train().metrics, open_sky=True)
