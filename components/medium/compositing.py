@@ -168,10 +168,10 @@ class MediumCompositor:
         far = self.far_bound(field)
         infinite = self.config.background == "infinite"
         if infinite:  # the covered share ends at the surface; the rest is read at the far bound
-            a = alpha.detach().clamp(0.0, 1.0)[..., 0]  # [H, W]
+            a = alpha.clamp(0.0, 1.0)[..., 0]  # [H, W]
             d = depth if self.config.depth_gradient else depth.detach()
             z = d[..., 0].clamp(min=1e-6, max=far)  # [H, W]
-            z_rays = torch.where(a < 1.0 - 1e-3, torch.full_like(z, far), z)  # [H, W]
+            z_rays = torch.where(a.detach() < 1.0 - 1e-3, torch.full_like(z, far), z)  # [H, W]
         else:
             z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
             z_rays = z
@@ -246,9 +246,12 @@ class MediumCompositor:
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
         tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1))
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
+        # alpha keeps its gradient here: a hole in a surface shows the haze's own light, and only
+        # this derivative tells the optimizer so (detached, opacity resets left hazy holes that
+        # pruning then made permanent: measured in docs/results/medium_recovery.md)
         cover = a[..., None]  # [H, W, 1]
         S = cover * S_p.reshape(H, W, 3) + (1.0 - cover) * sky
-        return MediumRender(T, S, z[..., None], coverage=cover, sky=sky)
+        return MediumRender(T, S, z[..., None], coverage=cover.detach(), sky=sky)
 
 
 def homogeneous_along_rays(

@@ -225,3 +225,18 @@ def test_infinite_background_in_a_varying_medium_continues_with_the_boundary_val
     assert float(extra.min()) >= 0.0
     assert float((extra / to_far.transmittance).max()) <= 1.0 + 1e-5  # L <= 1
     assert float(extra.mean()) > 0.01
+
+
+def test_infinite_background_passes_the_gradient_of_coverage(device):
+    """A hole in a surface brightens the pixel towards the haze light: alpha must see that."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4, light=0.9).to(device)
+    z = _depth_with_edges(device)
+    alpha = torch.full_like(z, 0.7).requires_grad_(True)
+    med = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8, background="infinite"))(
+        field, cam, z, alpha
+    )
+    med.scattering.sum().backward()
+    # dS/dalpha = S(surface) - S(infinity) < 0: more coverage, less haze light
+    assert float(alpha.grad.max()) < 0.0
+    assert not med.coverage.requires_grad  # the reported coverage is a measurement, not a route
