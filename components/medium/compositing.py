@@ -168,10 +168,9 @@ class MediumCompositor:
         far = self.far_bound(field)
         infinite = self.config.background == "infinite"
         if infinite:  # the covered share ends at the surface; the rest is read at the far bound
-            a = alpha.clamp(0.0, 1.0)[..., 0]  # [H, W]
-            d = depth if self.config.depth_gradient else depth.detach()
-            z = d[..., 0].clamp(min=1e-6, max=far)  # [H, W]
-            z_rays = torch.where(a.detach() < 1.0 - 1e-3, torch.full_like(z, far), z)  # [H, W]
+            z = self.surface_depth(depth, far)[..., 0]  # [H, W]
+            open_px = alpha.detach()[..., 0] < 1.0 - 1e-3  # [H, W]
+            z_rays = torch.where(open_px, torch.full_like(z, far), z)
         else:
             z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
             z_rays = z
@@ -246,12 +245,25 @@ class MediumCompositor:
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
         tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1))
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        # alpha keeps its gradient here: a hole in a surface shows the haze's own light, and only
-        # this derivative tells the optimizer so (detached, opacity resets left hazy holes that
-        # pruning then made permanent: measured in docs/results/medium_recovery.md)
-        cover = a[..., None]  # [H, W, 1]
-        S = cover * S_p.reshape(H, W, 3) + (1.0 - cover) * sky
-        return MediumRender(T, S, z[..., None], coverage=cover.detach(), sky=sky)
+        return self.open_sky(MediumRender(T, S_p.reshape(H, W, 3), z[..., None]), alpha, sky)
+
+    def surface_depth(self, depth: Tensor, far: float) -> Tensor:
+        """[H, W, 1] where the covered share of each pixel ends (``background infinite``)."""
+        d = depth if self.config.depth_gradient else depth.detach()
+        return d.clamp(min=1e-6, max=far)
+
+    @staticmethod
+    def open_sky(surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
+        """Blend the medium to the covered surface with the light from infinity ``sky`` [H, W, 3]
+        by the pixel's coverage ``alpha`` [H, W, 1] (``background infinite``).
+
+        Alpha keeps its gradient here: a hole in a surface shows the haze's own light, and only
+        this derivative tells the optimizer so (detached, opacity resets left hazy holes that
+        pruning then made permanent: docs/results/medium_recovery.md).
+        """
+        cover = alpha.clamp(0.0, 1.0)
+        S = cover * surface.scattering + (1.0 - cover) * sky
+        return MediumRender(surface.transmittance, S, surface.end_depth, coverage=cover.detach(), sky=sky)
 
 
 def homogeneous_along_rays(

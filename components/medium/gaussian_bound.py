@@ -82,7 +82,12 @@ class GaussianBoundMedium(MediumField):
         """The Gaussians' alpha-blended medium values per pixel, homogeneous along each pixel's ray."""
         blended = model.render_attribute(rasterizer, camera, ATTRIBUTE)[0]  # [H, W, 4]
         beta, light = self.pixel_medium(blended, alpha)
-        end = compositor.end_depth(depth, alpha, compositor.far_bound(self))
+        far = compositor.far_bound(self)
+        if compositor.config.background == "infinite":  # homogeneous to infinity: S_inf = light
+            end = compositor.surface_depth(depth, far)
+            surface = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
+            return compositor.open_sky(surface, alpha, light)
+        end = compositor.end_depth(depth, alpha, far)
         return homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:

@@ -336,10 +336,14 @@ def test_nothing_rendered_in_any_view(scenes, tmp_path, device):
     _assert_sound(trainer, trainer.train().metrics)
 
 
-def test_nothing_rendered_with_the_background_at_infinity(scenes, tmp_path, device):
+@pytest.mark.parametrize("medium", ["triplane", "gaussian-bound"])
+def test_nothing_rendered_with_the_background_at_infinity(scenes, tmp_path, device, medium):
     """Every opacity 0 and ``background infinite``: every pixel is the medium's light from infinity,
     the clean render shows that same light (no black background), T is 0, and training stays finite."""
-    trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.composite.background", "infinite")
+    trainer = _trainer(
+        scenes["sky"], tmp_path, device, "--pipeline.composite.background", "infinite",
+        "--pipeline.medium.backend", medium,
+    )  # fmt: skip
     pipe = trainer.pipeline
     with torch.no_grad():
         pipe.model.params["opacity_logits"].fill_(-120.0)
