@@ -25,7 +25,7 @@ supervised by the depth prior instead (``depth_gradient`` turns the gradient on)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Annotated, Literal
 
 import torch
@@ -63,6 +63,11 @@ class CompositeConfig:
     in-scattering S + T L at the far end), the pixel's uncovered share is pure in-scattering, and
     the clean render shows that light there (the sky behind haze is unobservable; the dark
     channel's J = A convention)."""
+    clean_sky: Literal["auto", "background", "haze-light"] = "auto"
+    """What the clean render shows where the Gaussians do not cover a pixel: the background colour,
+    or the haze's light arriving from infinity along the ray (the observed sky; the dark channel's
+    J = A convention). It changes the clean render only, never the hazy composite or training.
+    ``auto``: the haze light with ``background infinite``, the background colour with ``far``."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -77,22 +82,25 @@ class MediumRender:
     scattering: Tensor  # [H, W, 3] >= 0
     end_depth: Tensor  # [H, W, 1] z-depth the rays were marched to
     coverage: Tensor | None = None
-    """[H, W, 1] the Gaussians' alpha when the uncovered share of each pixel sees the medium to
-    infinity (``background infinite``): the clean render is then premultiplied (no background
-    colour) and T is the transmittance to the covered surface; None: rays end at ``end_depth``."""
+    """[H, W, 1] the Gaussians' alpha (detached) wherever ``sky`` or ``at_infinity`` needs it."""
     sky: Tensor | None = None
-    """[H, W, 3] light arriving from infinity along the ray (with ``coverage``; only marched where
-    the coverage is below 1, and weighted by 1 - coverage wherever it is used)."""
+    """[H, W, 3] light arriving from infinity along the ray, shown by the clean render where the
+    Gaussians do not cover the pixel (``clean_sky``); None: the background colour is shown. Only
+    marched where the coverage is below 1, and weighted by 1 - coverage wherever it is used."""
+    at_infinity: bool = False
+    """The uncovered share of each pixel sees the medium to infinity (``background infinite``):
+    the clean render composited is premultiplied (no background colour) and T is the
+    transmittance to the covered surface; False: rays end at ``end_depth``."""
 
     def pixel_transmittance(self) -> Tensor:
         """[H, W, 1] the share of the pixel's clean radiance that reaches the camera (0 for sky)."""
-        if self.coverage is None:
+        if not self.at_infinity or self.coverage is None:
             return self.transmittance
         return self.transmittance * self.coverage
 
     def clean_with_sky(self, clean: Tensor) -> Tensor:
         """The premultiplied clean render [H, W, 3] with the uncovered share filled by the sky light
-        (unchanged when rays end at the far bound)."""
+        (unchanged when the clean render shows the background colour)."""
         if self.coverage is None or self.sky is None:
             return clean
         return clean + (1.0 - self.coverage) * self.sky
@@ -167,13 +175,15 @@ class MediumCompositor:
         H, W = depth.shape[:2]
         far = self.far_bound(field)
         infinite = self.config.background == "infinite"
+        sky_shown = self.shows_sky()
         if infinite:  # the covered share ends at the surface; the rest is read at the far bound
             z = self.surface_depth(depth, far)[..., 0]  # [H, W]
-            open_px = alpha.detach()[..., 0] < 1.0 - 1e-3  # [H, W]
-            z_rays = torch.where(open_px, torch.full_like(z, far), z)
         else:
             z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
-            z_rays = z
+        z_rays = z
+        if infinite or sky_shown:  # rays of uncovered pixels reach the far bound for the sky light
+            open_px = alpha.detach()[..., 0] < 1.0 - 1e-3  # [H, W]
+            z_rays = torch.where(open_px, torch.full_like(z, far), z)
         if not field.has_medium:
             return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
         s, K = self.stride_for(H, W), self.config.num_samples
@@ -239,21 +249,28 @@ class MediumCompositor:
 
         tau_p, S_p, _ = read(z.reshape(1, -1))  # [H*W], [H*W, 3]
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        if not infinite:
-            return MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+        if not (infinite or sky_shown):
+            return surface
         # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
         tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1))
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        return self.open_sky(MediumRender(T, S_p.reshape(H, W, 3), z[..., None]), alpha, sky)
+        if infinite:
+            return self.open_sky(surface, alpha, sky)
+        return replace(surface, coverage=alpha.detach().clamp(0.0, 1.0), sky=sky)
+
+    def shows_sky(self) -> bool:
+        """Whether the clean render shows the haze light where nothing covers a pixel."""
+        mode = self.config.clean_sky
+        return mode == "haze-light" or (mode == "auto" and self.config.background == "infinite")
 
     def surface_depth(self, depth: Tensor, far: float) -> Tensor:
         """[H, W, 1] where the covered share of each pixel ends (``background infinite``)."""
         d = depth if self.config.depth_gradient else depth.detach()
         return d.clamp(min=1e-6, max=far)
 
-    @staticmethod
-    def open_sky(surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
+    def open_sky(self, surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
         """Blend the medium to the covered surface with the light from infinity ``sky`` [H, W, 3]
         by the pixel's coverage ``alpha`` [H, W, 1] (``background infinite``).
 
@@ -263,7 +280,10 @@ class MediumCompositor:
         """
         cover = alpha.clamp(0.0, 1.0)
         S = cover * surface.scattering + (1.0 - cover) * sky
-        return MediumRender(surface.transmittance, S, surface.end_depth, coverage=cover.detach(), sky=sky)
+        shown = sky if self.shows_sky() else None
+        return MediumRender(
+            surface.transmittance, S, surface.end_depth, coverage=cover.detach(), sky=shown, at_infinity=True
+        )
 
 
 def homogeneous_along_rays(

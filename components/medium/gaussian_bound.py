@@ -10,6 +10,7 @@ primitives, which is exactly the coupling Tri-DehazeGS removes.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 from torch import Tensor, nn
@@ -88,7 +89,10 @@ class GaussianBoundMedium(MediumField):
             surface = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
             return compositor.open_sky(surface, alpha, light)
         end = compositor.end_depth(depth, alpha, far)
-        return homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
+        med = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
+        if compositor.shows_sky():
+            return replace(med, coverage=alpha.detach().clamp(0.0, 1.0), sky=light)
+        return med
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         return {

@@ -280,7 +280,8 @@ class GaussianPipeline(Pipeline):
             if med is None:
                 hazy = clean
             else:
-                clean = self._surface_colour(clean, out, med, bg)
+                if med.at_infinity:
+                    clean = self._surface_colour(clean, out, med, bg)
                 hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
             loss, terms = self.loss_fn(hazy, target)
         self._photometric = loss.detach()
@@ -311,9 +312,10 @@ class GaussianPipeline(Pipeline):
 
     @staticmethod
     def _surface_colour(clean: Tensor, out: RasterizeOutput, med: MediumRender, background: Tensor) -> Tensor:
-        """The clean render the medium composites: without the background colour where the
-        uncovered share of a pixel sees the medium to infinity (``composite.background infinite``)."""
-        if med.coverage is None:
+        """The clean render without the background colour (premultiplied) where the medium stands in
+        for it: composited to infinity (``composite.background infinite``) or shown as the sky
+        (``composite.clean-sky``)."""
+        if not med.at_infinity and med.sky is None:
             return clean
         return clean - (1.0 - out.alpha[0]) * background  # [H, W, 3] premultiplied
 
@@ -363,7 +365,7 @@ class GaussianPipeline(Pipeline):
         else:
             surface = self._surface_colour(clean, out, med, self.background)
             T, S = med.pixel_transmittance(), med.scattering
-            hazy = composite(surface, med)
+            hazy = composite(surface if med.at_infinity else clean, med)
             clean = med.clean_with_sky(surface)
         return {
             "clean": clean.clamp(0, 1),

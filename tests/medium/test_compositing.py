@@ -240,3 +240,42 @@ def test_infinite_background_passes_the_gradient_of_coverage(device):
     # dS/dalpha = S(surface) - S(infinity) < 0: more coverage, less haze light
     assert float(alpha.grad.max()) < 0.0
     assert not med.coverage.requires_grad  # the reported coverage is a measurement, not a route
+
+
+@pytest.mark.parametrize("clean_sky", ["background", "haze-light"])
+def test_clean_sky_changes_the_clean_render_only(device, clean_sky):
+    """``clean_sky`` fills uncovered pixels of the clean render with the light from infinity; T and
+    S (the hazy composite, hence training) are those of the far-bound march either way."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4, light=0.6).to(device)
+    z = _depth_with_edges(device)
+    alpha = torch.ones_like(z)
+    alpha[:, :8] = 0.0
+    ref = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8))(field, cam, z, alpha)
+    med = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8, clean_sky=clean_sky))(
+        field, cam, z, alpha
+    )
+    torch.testing.assert_close(med.transmittance, ref.transmittance)
+    torch.testing.assert_close(med.scattering, ref.scattering)
+    torch.testing.assert_close(med.pixel_transmittance(), ref.transmittance)
+    clean = torch.rand(H, W, 3, device=device) * alpha
+    filled = med.clean_with_sky(clean)
+    if clean_sky == "background":
+        assert med.sky is None
+        torch.testing.assert_close(filled, clean)
+    else:  # homogeneous to infinity: the sky is the light
+        torch.testing.assert_close(filled[:, :8], torch.full_like(filled[:, :8], 0.6), atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(filled[:, 8:], clean[:, 8:])
+
+
+def test_infinite_background_can_keep_the_background_colour_in_the_clean_render(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.4, light=0.6).to(device)
+    z = _depth_with_edges(device)
+    alpha = torch.zeros_like(z)
+    cfg = CompositeConfig(ray_stride=1, num_samples=8, background="infinite", clean_sky="background")
+    med = MediumCompositor(cfg)(field, cam, z, alpha)
+    assert med.at_infinity and med.sky is None
+    torch.testing.assert_close(med.scattering, torch.full_like(med.scattering, 0.6), atol=1e-5, rtol=1e-5)
+    clean = torch.zeros(H, W, 3, device=device)
+    torch.testing.assert_close(med.clean_with_sky(clean), clean)
