@@ -113,6 +113,25 @@ def dcp_transmittance_loss(
     return (diff * w).sum() / w.sum().clamp_min(1.0)
 
 
+def dark_channel_bound(
+    image: Tensor,
+    light: Tensor,
+    patch: int,
+    omega: float = 0.95,
+) -> Tensor:
+    """The dark channel's lower bound on T [H, W] with a per-pixel airlight (torch, differentiable
+    in nothing: both inputs are detached by the caller).
+
+    image, light: [H, W, 3]. t >= 1 - omega * min_patch min_c I_c / A_c holds wherever the clean
+    patch has a dark pixel and A is the light the haze scatters *along that ray*. One airlight per
+    image over-estimates t where the haze's light is dimmer than that (away from the sun in
+    forward-scattering haze); the medium's own light per pixel does not.
+    """
+    ratio = (image / light.clamp_min(1e-3)).amin(dim=-1)  # [H, W]
+    dark = -torch.nn.functional.max_pool2d(-ratio[None, None], patch, stride=1, padding=patch // 2)[0, 0]
+    return (1.0 - omega * dark).clamp(0.0, 1.0)
+
+
 def dcp_transmittance_tensor(image: np.ndarray, **kwargs) -> torch.Tensor:
     """Convenience: ``estimate_dcp(image, **kwargs).transmittance`` as a float32 tensor [H, W]."""
     return torch.from_numpy(estimate_dcp(image, **kwargs).transmittance)

@@ -18,7 +18,7 @@ from torch.profiler import record_function
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
-from components.losses.dcp import DCPResult, dcp_transmittance_loss
+from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
@@ -93,9 +93,11 @@ class GaussianPipelineConfig(PipelineConfig):
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
     lambda_dcp: Annotated[float, NonNegative] = 0.0
     """Weight of the dark-channel transmittance loss ||T - T_dcp||^2 (Stage I only); 0 = off."""
-    dcp_bound: Literal["two-sided", "lower"] = "two-sided"
+    dcp_bound: Literal["two-sided", "lower", "lower-own-light"] = "two-sided"
     """How the dark channel constrains T: ``two-sided`` pulls T to it (the paper's MSE); ``lower``
-    penalises only T below it, since the prior under-estimates t on surfaces without dark pixels."""
+    penalises only T below it, since the prior under-estimates t on surfaces without dark pixels;
+    ``lower-own-light`` the same bound recomputed each step with the medium's own light along each
+    ray as the airlight (one airlight per image over-estimates t where the haze light is dimmer)."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
@@ -298,7 +300,10 @@ class GaussianPipeline(Pipeline):
         if med is not None:
             T = med.pixel_transmittance()[..., 0]  # [H, W]
             if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
-                dcp = dcp_transmittance_loss(T, prior.t_dcp, lower_bound=cfg.dcp_bound == "lower")
+                t_prior, mask = prior.t_dcp, None
+                if cfg.dcp_bound == "lower-own-light":
+                    t_prior, mask = self._own_light_bound(target, med)
+                dcp = dcp_transmittance_loss(T, t_prior, mask, lower_bound=cfg.dcp_bound != "two-sided")
                 loss = loss + cfg.lambda_dcp * dcp
                 metrics["dcp"] = dcp.detach()
             reg = self.medium.regularizer() if self._medium_trainable(step) else None
@@ -309,6 +314,17 @@ class GaussianPipeline(Pipeline):
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
+
+    @staticmethod
+    def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:
+        """The dark-channel bound on T [H, W] with the medium's light along each ray as airlight
+        (S / (1 - T), detached), and where it is defined: pixels with at least 5 % haze."""
+        T = med.pixel_transmittance().detach()  # [H, W, 1]
+        haze = 1.0 - T
+        light = med.scattering.detach() / haze.clamp_min(0.05)  # [H, W, 3]
+        H, W = T.shape[:2]
+        bound = dark_channel_bound(target, light, default_patch(H, W))  # [H, W]
+        return bound, haze[..., 0] >= 0.05
 
     @staticmethod
     def _surface_colour(clean: Tensor, out: RasterizeOutput, med: MediumRender, background: Tensor) -> Tensor:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from components.losses.dcp import dcp_transmittance_loss, dehaze, estimate_dcp
+from components.losses.dcp import dark_channel_bound, dcp_transmittance_loss, dehaze, estimate_dcp
 
 AIRLIGHT = np.array([0.8, 0.85, 0.9], np.float32)
 H, W = 96, 128
@@ -112,3 +112,20 @@ def test_dark_channel_under_estimates_transmittance_of_a_bright_surface():
     wall_t = est.transmittance[30:].mean()  # away from the min filter's reach into the sky
     assert wall_t == pytest.approx(1 - 0.95 * (0.6 * t_true + 0.9 * (1 - t_true)) / 0.9, abs=1e-5)
     assert wall_t < t_true - 0.4
+
+
+def test_dark_channel_bound_with_the_haze_light_per_pixel():
+    """Where the haze light is dimmer than one global airlight, the global estimate lands above the
+    true t (no longer a bound); the per-pixel light keeps it below, and tight on dark patches."""
+    H, W, t = 12, 15, 0.4
+    j = torch.full((H, W, 3), 0.5)
+    j[1::3, 1::3] = 0.0  # a black pixel in every 3x3 patch
+    light = torch.full((H, W, 3), 0.9)
+    light[:, W // 2 :] = 0.5  # the haze light away from the sun is dimmer
+    i = j * t + light * (1 - t)
+    own = dark_channel_bound(i, light, patch=3, omega=1.0)
+    torch.testing.assert_close(own, torch.full_like(own, t), atol=1e-5, rtol=0)
+    glob = dark_channel_bound(i, torch.full_like(light, 0.9), patch=3, omega=1.0)
+    assert float(glob[:, W // 2 + 2 :].min()) > t + 0.2  # one airlight: far above the truth
+    soft = dark_channel_bound(i, light, patch=3)  # omega 0.95 keeps a little haze: never above t
+    assert float(soft.max()) <= t + 0.05 * (1 - t) + 1e-6

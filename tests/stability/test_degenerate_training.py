@@ -360,3 +360,12 @@ def test_sky_views_train_with_the_background_at_infinity(scenes, tmp_path, devic
     trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.composite.background", "infinite")
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics, open_sky=True)
+
+
+@pytest.mark.parametrize("bound", ["lower", "lower-own-light"])
+def test_dark_channel_bounds_train_soundly(scenes, tmp_path, device, bound):
+    trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.dcp-bound", bound)
+    res = trainer.pipeline.train_loss(0)
+    assert torch.isfinite(res.metrics["dcp"]) and float(res.metrics["dcp"]) >= 0.0
+    _check_one_step(trainer)
+    _assert_sound(trainer, trainer.train().metrics)
