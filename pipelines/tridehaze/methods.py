@@ -111,7 +111,7 @@ def tri_dehaze_fast() -> TrainerConfig:
     (
         "Tri-DehazeGS on the paper's schedule: 15000 steps, the medium fitted jointly for the first "
         "3000 and then frozen (Stage II, MD-TGC) for the rest; otherwise tri-dehaze's settings "
-        "(about 5x its time)."
+        "(5x its steps)."
     ),
 )
 def tri_dehaze_paper() -> TrainerConfig:
