@@ -72,7 +72,9 @@ class CompositeConfig:
     clean_sky: Literal["auto", "background", "haze-light"] = "auto"
     """What the clean render shows where the Gaussians do not cover a pixel: the background colour,
     or the haze's light arriving from infinity along the ray (the observed sky; the dark channel's
-    J = A convention). It changes the clean render only, never the hazy composite or training.
+    J = A convention). It changes the clean render, not the composite's equations; with ``far``
+    the coarse rays of pixels covered less than half then march to the far bound for that light,
+    which moves their samples (T and S differ slightly where the medium varies across a block).
     ``auto``: the haze light with ``background infinite``, the background colour with ``far``."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
@@ -238,8 +240,9 @@ class MediumCompositor:
         zfar_r = zfar.reshape(-1)[rays]  # [4, H*W]
         r = pix_len / ray_len  # ~1: obliquity of the pixel vs the coarse ray
 
-        def read(zq: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-            """Optical depth [H*W], scattering [H*W, 3] and the last light [H*W, 3] to z ``zq`` [1, H*W]."""
+        def read(zq: Tensor, last_light: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
+            """Optical depth [H*W], scattering [H*W, 3] and (``last_light``) the light of the last
+            interval read [H*W, 3] to z ``zq`` [1, H*W]."""
             pos = (zq / zfar_r.clamp_min(1e-12)).clamp(0, 1) * K  # [4, H*W] position in intervals
             k = pos.detach().floor().clamp(max=K - 1).long()
             f = pos - k.to(pos)  # fraction of interval k covered
@@ -251,7 +254,7 @@ class MediumCompositor:
             # S is a light-weighted scattered fraction 1 - T: keep the weighting, rescale the fraction
             den = -torch.expm1(-t_ray)
             frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
-            light = (wgt[..., None] * L_k).sum(0)  # [H*W, 3]
+            light = (wgt[..., None] * L_k).sum(0) if last_light else None  # [H*W, 3]
             return (wgt * t_pix).sum(0), ((wgt * frac)[..., None] * s_ray).sum(0), light
 
         tau_p, S_p, _ = read(z.reshape(1, -1))  # [H*W], [H*W, 3]
@@ -261,11 +264,9 @@ class MediumCompositor:
             return surface
         # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
-        tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1))
+        tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1), last_light=True)
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        if infinite:
-            return self.open_sky(surface, alpha, sky)
-        return replace(surface, coverage=alpha.detach().clamp(0.0, 1.0), sky=sky)
+        return self.with_sky(surface, alpha, sky)
 
     def shows_sky(self) -> bool:
         """Whether the clean render shows the haze light where nothing covers a pixel."""
@@ -276,6 +277,16 @@ class MediumCompositor:
         """[H, W, 1] where the covered share of each pixel ends (``background infinite``)."""
         d = depth if self.config.depth_gradient else depth.detach()
         return d.clamp(min=1e-6, max=far)
+
+    def with_sky(self, surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
+        """``surface`` (the medium to each pixel's end depth) completed with the light from
+        infinity ``sky`` [H, W, 3] as the config asks: blended in by coverage (``background
+        infinite``), kept for the clean render only (``clean_sky``), or dropped."""
+        if self.config.background == "infinite":
+            return self.open_sky(surface, alpha, sky)
+        if self.shows_sky():
+            return replace(surface, coverage=alpha.detach().clamp(0.0, 1.0), sky=sky)
+        return surface
 
     def open_sky(self, surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
         """Blend the medium to the covered surface with the light from infinity ``sky`` [H, W, 3]

@@ -10,7 +10,6 @@ primitives, which is exactly the coupling Tri-DehazeGS removes.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import torch
 from torch import Tensor, nn
@@ -84,15 +83,12 @@ class GaussianBoundMedium(MediumField):
         blended = model.render_attribute(rasterizer, camera, ATTRIBUTE)[0]  # [H, W, 4]
         beta, light = self.pixel_medium(blended, alpha)
         far = compositor.far_bound(self)
-        if compositor.config.background == "infinite":  # homogeneous to infinity: S_inf = light
+        if compositor.config.background == "infinite":
             end = compositor.surface_depth(depth, far)
-            surface = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
-            return compositor.open_sky(surface, alpha, light)
-        end = compositor.end_depth(depth, alpha, far)
-        med = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
-        if compositor.shows_sky():
-            return replace(med, coverage=alpha.detach().clamp(0.0, 1.0), sky=light)
-        return med
+        else:
+            end = compositor.end_depth(depth, alpha, far)
+        surface = homogeneous_along_rays(beta, light, camera, end, compositor.config.t_floor)
+        return compositor.with_sky(surface, alpha, light)  # homogeneous to infinity: the sky is L
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         return {
