@@ -55,6 +55,18 @@ class RunnerOptions:
     bins: str = "auto"
     lpips: str = "auto"
     extra: tuple[str, ...] = ()
+    die_with_parent: bool = False
+    """Children get SIGKILL when the process that started them dies (Linux): a sweep worker that a
+    cluster kills must not leave a td-train behind that still writes the run folder its retry uses."""
+
+
+def _die_with_parent() -> None:
+    """``preexec_fn``: ask the kernel to kill this child when its parent thread ends (Linux only)."""
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
 
 
 class AblationRunner:
@@ -65,6 +77,7 @@ class AblationRunner:
         self._procs: set[subprocess.Popen] = set()
         self._lock = threading.Lock()
         self._stopping = False
+        self._on_start = None
         self.peak_rss_mb: dict[int, float] = {}
         """Peak resident memory of the current job's processes, per worker thread."""
         self.cpu_seconds: dict[int, float] = {}
@@ -111,11 +124,25 @@ class AblationRunner:
         env = {**os.environ, "OMP_NUM_THREADS": str(self.opts.threads)}
         log.write(f"$ {' '.join(cmd)}\n")
         log.flush()
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        preexec = _die_with_parent if self.opts.die_with_parent and sys.platform == "linux" else None
+        proc = subprocess.Popen(
+            cmd, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True, preexec_fn=preexec
+        )
         with self._lock:
             self._procs.add(proc)
         try:
-            _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak memory, unlike getrusage
+            try:
+                _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak memory, unlike getrusage
+            except KeyboardInterrupt:  # a cancelled sweep task: Ctrl-C the child, which checkpoints
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGINT)
+                try:
+                    proc.wait(timeout=60.0)
+                except subprocess.TimeoutExpired:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                raise
             proc.returncode = os.waitstatus_to_exitcode(status)
             me = threading.get_ident()
             self.peak_rss_mb[me] = max(self.peak_rss_mb.get(me, 0.0), usage.ru_maxrss / 1024.0)  # KiB -> MiB
@@ -214,8 +241,8 @@ class AblationRunner:
         return {"status": "failed", "scene": job.scene.name, "variant": job.variant.name, "why": why,
                 "last_line": tail, "log": str(log_path)}  # fmt: skip
 
-    def run(self, jobs: list[Job], on_done) -> list[dict[str, Any]]:
-        """Run every unfinished job; ``on_done(job, result, skipped)`` after each."""
+    def split_finished(self, jobs: list[Job], on_done) -> tuple[list[dict[str, Any]], list[Job]]:
+        """The stored results of finished jobs (``on_done(job, result, True)`` for each) and the rest."""
         results: list[dict[str, Any]] = []
         todo = []
         for job in jobs:
@@ -225,6 +252,13 @@ class AblationRunner:
                 on_done(job, done, True)
             else:
                 todo.append(job)
+        return results, todo
+
+    def run(self, jobs: list[Job], on_done, on_start=None) -> list[dict[str, Any]]:
+        """Run every unfinished job in local processes; ``on_start(job)`` as each starts,
+        ``on_done(job, result, skipped)`` after each."""
+        results, todo = self.split_finished(jobs, on_done)
+        self._on_start = on_start
         pool = ThreadPoolExecutor(max_workers=max(self.opts.jobs, 1))
         try:
             futures = {pool.submit(self._guarded, job): job for job in todo}
@@ -243,6 +277,8 @@ class AblationRunner:
     def _guarded(self, job: Job) -> dict[str, Any]:
         if self._stopping:
             return {"status": "skipped", "scene": job.scene.name, "variant": job.variant.name}
+        if self._on_start is not None:
+            self._on_start(job)
         return self.run_one(job)
 
     def interrupt(self) -> None:

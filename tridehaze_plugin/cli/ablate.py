@@ -27,14 +27,16 @@ from pipelines.engine.metrics import psnr
 from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.ablation import FAMILIES, plan
 from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+from pipelines.experiments.sweep import report_failures, run_sweep
 from pipelines.experiments.tables import bar_plot, claims_table, csv_text, markdown_table
 from tridehaze_plugin.cli.common import run_cli, split_train_args
+from tridehaze_plugin.cli.sweep_args import SweepExecutorArgs, sweep_options
 from tridehaze_plugin.config import SEED_RANGE, check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
 @dataclass
-class AblateArgs:
+class AblateArgs(SweepExecutorArgs):
     """Run the paper's ablations (medium representation, medium field, schedule, losses, baselines)."""
 
     scenes: list[Path]
@@ -115,6 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     _check(args)
     families = list(dict.fromkeys(args.families))
     variants = plan(families)
+    sweep = sweep_options(args, args.jobs, args.threads)
     jobs = [Job(scene, v) for scene in args.scenes for v in variants]
     opts = RunnerOptions(
         output_dir=args.output_dir, max_steps=args.max_steps, seed=args.seed, threads=args.threads,
@@ -145,8 +148,9 @@ def main(argv: list[str] | None = None) -> None:
             f"[{counter['n']}/{len(jobs)}] {job.scene.name} / {job.variant.name}: {ps} ({what})", flush=True
         )
 
-    print(f"{len(jobs)} runs ({len(variants)} variants x {len(args.scenes)} scenes), {args.jobs} at a time")
-    results = runner.run(jobs, on_done)
+    where = f"{args.jobs} at a time" if sweep.executor == "local" else "as Ray tasks"
+    print(f"{len(jobs)} runs ({len(variants)} variants x {len(args.scenes)} scenes), {where}")
+    results = run_sweep(runner, jobs, on_done, sweep, "td-ablate")
     scenes = [s.name for s in args.scenes]
     out = args.output_dir
     md = markdown_table(results, scenes, families, baselines)
@@ -164,12 +168,8 @@ def main(argv: list[str] | None = None) -> None:
     )  # fmt: skip
     bar_plot(results, scenes, families, baselines, out / "ablation.png")
     print(header + md + "\n" + claims_md)
-    failed = [r for r in results if r["status"] != "ok"]
     print(f"wrote {out}/ablation.md, .csv, .json, .png in {time.perf_counter() - t0:.0f} s")
-    if failed:
-        for r in failed:
-            print(f"failed: {r['scene']} / {r['variant']}: {r.get('why')} ({r.get('log')})", file=sys.stderr)
-        raise SystemExit(1)
+    report_failures(results)
 
 
 def entrypoint() -> None:

@@ -38,15 +38,17 @@ import tyro
 
 from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+from pipelines.experiments.sweep import report_failures, run_sweep
 from pipelines.experiments.tables import fmt_number, mean_finite, nested
 from pipelines.experiments.tradeoff import BASE_STEPS, KNOBS, grid, pareto_front
 from tridehaze_plugin.cli.common import run_cli, split_train_args
+from tridehaze_plugin.cli.sweep_args import SweepExecutorArgs, sweep_options
 from tridehaze_plugin.config import SEED_RANGE, Range, check_numbers
 from tridehaze_plugin.errors import ConfigError
 
 
 @dataclass
-class TradeoffArgs:
+class TradeoffArgs(SweepExecutorArgs):
     """Speed-accuracy grid over the knobs that cost time; prints the Pareto front."""
 
     scenes: list[Path]
@@ -170,6 +172,7 @@ def tradeoff(args: TradeoffArgs) -> None:
         raise ConfigError("--jobs and --threads must be >= 1")
     if args.base_steps < 1:
         raise ConfigError(f"--base-steps must be >= 1, got {args.base_steps}")
+    sweep = sweep_options(args, args.jobs, args.threads)
     try:
         variants = grid(list(args.knobs), args.combos, args.base_steps)
     except ValueError as e:
@@ -186,9 +189,8 @@ def tradeoff(args: TradeoffArgs) -> None:
             print(f"{job.scene.name:>16}  {job.variant.name:<22} {state:<7} steps {runner.steps(job)} "
                   f"{' '.join(job.variant.overrides)}")  # fmt: skip
         return
-    print(
-        f"{len(jobs)} runs ({len(variants)} configurations x {len(args.scenes)} scenes), {args.jobs} at a time"
-    )
+    where = f"{args.jobs} at a time" if sweep.executor == "local" else "as Ray tasks"
+    print(f"{len(jobs)} runs ({len(variants)} configurations x {len(args.scenes)} scenes), {where}")
 
     def on_done(job: Job, result: dict, skipped: bool) -> None:
         score = (result.get("restoration") or {}).get("psnr")
@@ -196,7 +198,7 @@ def tradeoff(args: TradeoffArgs) -> None:
         shown = f"{score:.2f} dB" if score is not None else result.get("why", result["status"])
         print(f"{job.scene.name} / {job.variant.name}: {shown} ({state})", flush=True)
 
-    results = runner.run(jobs, on_done)
+    results = run_sweep(runner, jobs, on_done, sweep, "td-bench tradeoff")
     rows = summarize(results, [v.name for v in variants], names)
     md = markdown(rows, names)
     out = args.output_dir
@@ -211,11 +213,7 @@ def tradeoff(args: TradeoffArgs) -> None:
     by_time = sorted(rows, key=lambda r: r["wall_seconds"] or 0)
     print("Pareto front (time -> PSNR): " + ", ".join(r["name"] for r in by_time if r["pareto"]))
     print("Pareto front (time -> LPIPS): " + ", ".join(r["name"] for r in by_time if r["pareto_lpips"]))
-    failed = [r for r in results if r["status"] != "ok"]
-    if failed:
-        for r in failed:
-            print(f"failed: {r['scene']} / {r['variant']}: {r.get('why')} ({r.get('log')})", file=sys.stderr)
-        raise SystemExit(1)
+    report_failures(results)
 
 
 @dataclass
