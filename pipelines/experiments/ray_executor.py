@@ -156,6 +156,7 @@ def run_task(job: Job, opts, plan: TaskPlan, fingerprint: str, scene_box: list, 
         "shared": shared,
         "archive": None,
         "stored_at": None,
+        "scene_used": str(scene),
     }
     log = runner.log_path(local_job)
     out["log"] = None if shared or not log.is_file() else log.read_text(errors="replace")
