@@ -25,6 +25,7 @@ import hashlib
 import json
 import os
 import secrets
+import shutil
 import socket
 import tempfile
 import time
@@ -162,12 +163,14 @@ def run_task(job: Job, opts, plan: TaskPlan, fingerprint: str, scene_box: list, 
     out["log"] = None if shared or not log.is_file() else log.read_text(errors="replace")
     if result.get("status") == "ok":
         rd = runner.run_dir(local_job)
-        keep = run_folder_filter(plan.keep_checkpoints or shared)
+        keep = run_folder_filter(plan.keep_checkpoints)
         rel = rd.relative_to(workdir / "runs").as_posix()
         if plan.storage_path:
             out["stored_at"] = copy_to_storage(rd, plan.storage_path, rel, keep)
         elif not shared:
             out["archive"] = pack_folder(rd, keep)
+        if not shared:  # the scratch copy was only kept for a retry on this node to resume
+            shutil.rmtree(rd, ignore_errors=True)
     return out
 
 

@@ -150,7 +150,7 @@ def test_tradeoff_on_an_embedded_ray_writes_in_place(scenes, tmp_path):
     for res in data["results"]:
         assert res["status"] == "ok" and res["node"] == "127.0.0.1"  # the embedded Ray stays on loopback
         # shared file system (same machine): the run wrote in place, checkpoints and all, and a copy
-        # went to the storage URI
+        # without checkpoints went to the storage URI
         local = out / "runs" / scenes[0].name / "tri-dehaze" / res["variant"]
         assert (local / "checkpoints").is_dir()
         assert res["run"] == f"{(tmp_path / 'store').as_uri()}/{scenes[0].name}/tri-dehaze/{res['variant']}"
