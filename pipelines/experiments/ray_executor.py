@@ -117,7 +117,7 @@ def _sees_head_folder(plan: TaskPlan) -> bool:
         return False
 
 
-def _local_scene(scene: Path, fingerprint: str, scene_box: list, trust_path: bool) -> Path:
+def _local_scene(scene: Path, fingerprint: str, archive: bytes | None, trust_path: bool) -> Path:
     """The scene at the head's path when this node has that very dataset there, else a copy
     unpacked from the object store (once per node)."""
     if trust_path:
@@ -128,25 +128,29 @@ def _local_scene(scene: Path, fingerprint: str, scene_box: list, trust_path: boo
             _FINGERPRINTS[key] = folder_fingerprint(scene)
         if _FINGERPRINTS[key] == fingerprint:
             return scene
-    import ray
-
     dest = scratch_root() / "scenes" / fingerprint / scene.name
-    if not dest.is_dir():
+    if not dest.is_dir() and archive is not None:
         with contextlib.suppress(FileExistsError, OSError):  # another task on this node unpacked it
-            unpack_folder(ray.get(scene_box[0]), dest, replace=False)
+            unpack_folder(archive, dest, replace=False)
     if not dest.is_dir():
         raise RuntimeError(f"could not unpack scene {scene.name} into {dest}")
     return dest
 
 
-def run_task(job: Job, opts, plan: TaskPlan, fingerprint: str, scene_box: list, board) -> dict[str, Any]:
-    """One run on a worker (a Ray task): train + evaluate, then hand the run back to the head."""
+def run_task(
+    job: Job, opts, plan: TaskPlan, fingerprint: str, archive: bytes | None, board
+) -> dict[str, Any]:
+    """One run on a worker (a Ray task): train + evaluate, then hand the run back to the head.
+
+    Never ``ray.get`` in here: a task blocked in ``ray.get`` lends its CPUs to the next task, which
+    then runs beside it (two trainings on one CPU). The scene archive is therefore an argument
+    (Ray fetches it before the task starts) and the start notice is sent without waiting."""
     import ray
 
     node = ray.util.get_node_ip_address()
-    ray.get(board.started.remote(job_key(job), node, os.getpid()))
+    board.started.remote(job_key(job), node, os.getpid())
     shared = _sees_head_folder(plan)
-    scene = _local_scene(job.scene, fingerprint, scene_box, trust_path=plan.shared_fs == "yes")
+    scene = _local_scene(job.scene, fingerprint, archive, trust_path=plan.shared_fs == "yes")
     workdir = Path(plan.head_output_dir) if shared else scratch_root() / "runs" / plan.scratch_key
     runner = AblationRunner(replace(opts, output_dir=workdir, jobs=1, die_with_parent=True))
     local_job = Job(scene, job.variant)
@@ -276,11 +280,11 @@ class RayExecutor:
         cpus, gpus = self._resources(ray)
         plan = self._plan()
         opts = replace(self.runner.opts, output_dir=Path(plan.head_output_dir))
-        scenes: dict[Path, tuple[str, list]] = {}
+        scenes: dict[Path, tuple[str, Any]] = {}
         for job in todo:
-            if job.scene not in scenes:
-                ship = [] if self.opts.shared_fs == "yes" else [ray.put(pack_folder(job.scene))]
-                scenes[job.scene] = (folder_fingerprint(job.scene), ship)  # a list: fetched only if needed
+            if job.scene not in scenes:  # one copy in the object store per scene, not per run
+                ship = None if self.opts.shared_fs == "yes" else ray.put(pack_folder(job.scene))
+                scenes[job.scene] = (folder_fingerprint(job.scene), ship)
         board = ray.remote(SweepBoard).options(num_cpus=0).remote()
         task = ray.remote(run_task)
         refs = {}
@@ -303,11 +307,11 @@ class RayExecutor:
                     results.append(res)
                     on_done(job, res, False)
         except KeyboardInterrupt:
-            for ref in pending:  # tasks get KeyboardInterrupt: their td-train is Ctrl-C'd and checkpoints
+            # force: a polite cancel does not reach a task waiting on its td-train. The worker dies,
+            # its td-train with it (PDEATHSIG); a rerun resumes from the run's last periodic checkpoint
+            for ref in pending:
                 with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=False)
-            with contextlib.suppress(Exception):
-                ray.wait(pending, num_returns=len(pending), timeout=60.0)
+                    ray.cancel(ref, force=True)
             raise
         return results
 
