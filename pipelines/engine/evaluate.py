@@ -13,6 +13,9 @@
   pixels of a bin across views (a bin that is tiny in one view does not dominate), SSIM is the
   mean of the SSIM map over the bin's pixels. The transmittance is the model's own where it has a
   medium, else the dataset's ``gt_transmittance`` maps where they exist (``source`` says which).
+- **Observable**: where the dataset has true T maps, restoration PSNR over the pixels whose
+  clean colour reaches the camera (true T >= 5 %) and their share, for every method: what a
+  whole-image PSNR mixes with pixels the photos do not show (``medium_recovery``).
 
 LPIPS (AlexNet) is computed when its weights are installed (``components.metrics.lpips``);
 otherwise it is reported as null with the reason, never replaced by a look-alike.
@@ -32,9 +35,11 @@ from pipelines.engine.contract import Pipeline
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.image_baselines import BASELINES, baseline_images
 from pipelines.engine.medium_recovery import (
+    OBSERVABLE_T,
     REFERENCE_S_KEY,
     REFERENCE_T_KEY,
     MediumAccumulator,
+    observable_scores,
     reference_map,
 )
 from pipelines.engine.metrics import psnr, ssim, ssim_map
@@ -159,7 +164,11 @@ def evaluate(
                 row["baselines"] = {
                     k: _scores(im, clean_ref, lpips_fn) for k, im in baseline_images(hazy_in).items()
                 }
-        true_t, true_s = _true_medium(dm, idx, out) if medium else (None, None)
+        true_t, true_s = _true_medium(dm, idx, tuple(out["clean"].shape[:2]))  # type: ignore[arg-type]
+        if clean_ref is not None and true_t is not None:
+            row["observable"] = observable_scores(out["clean"], clean_ref, true_t)
+        if not medium:
+            true_t = true_s = None
         if true_t is not None:
             model_t, model_s = out["transmittance"], out["scattering"]
             row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
@@ -178,6 +187,7 @@ def evaluate(
         "reconstruction": recon,
         "binned": binned.report(bin_source),
         "medium": recovery.result(),
+        "observable": _mean_observable(_column(per_view, "observable")),
         "baselines": {k: _mean(_column(per_view, "baselines", k)) for k in BASELINES}
         if any("baselines" in row for row in per_view)
         else None,
@@ -197,10 +207,22 @@ def _column(per_view: list[dict[str, Any]], *keys: str) -> list[Any]:
     return out
 
 
-def _true_medium(dm: DataManager, idx: int, out: dict[str, Tensor]) -> tuple[Tensor | None, Tensor | None]:
-    """The dataset's true T [H, W, 1] and S [H, W, 3] of view ``idx`` at the render's size (None
-    where it has none)."""
-    size = tuple(out["transmittance"].shape[:2])
+def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:
+    """Mean over views of the observable-pixel PSNR (views with such pixels) and share."""
+    if not rows:
+        return None
+    vals = [r["psnr"] for r in rows if r["psnr"] is not None]
+    return {
+        "psnr": sum(vals) / len(vals) if vals else None,
+        "share": sum(r["share"] for r in rows) / len(rows),  # type: ignore[misc]
+        "t_floor": OBSERVABLE_T,
+        "views": len(rows),
+    }
+
+
+def _true_medium(dm: DataManager, idx: int, size: tuple[int, int]) -> tuple[Tensor | None, Tensor | None]:
+    """The dataset's true T [H, W, 1] and S [H, W, 3] of view ``idx`` at ``size`` (None where it
+    has none)."""
     true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
     true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)  # type: ignore[arg-type]
     return true_t, true_s

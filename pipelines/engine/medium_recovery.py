@@ -11,6 +11,11 @@ written by ``td-synth``) this protocol reports, per view and as means over views
 - ``inverted_psnr``: PSNR against the clean reference of J = (I - S) / T inverted from the hazy
   input with the model's own T and S (how good the medium alone is as a dehazer), and
   ``true_inverted_psnr``, the same with the true maps: the ceiling the data allow.
+
+The same true T also splits restoration (``observable_scores``, for every method): pixels whose
+true T is at least ``OBSERVABLE_T`` carry their clean colour to the camera; below it (sky and far
+background behind dense haze) the clean reference is not in the photo at all, so any method can
+only guess it, and those pixels can dominate a whole-image PSNR.
 """
 
 from __future__ import annotations
@@ -36,6 +41,9 @@ T_BINS: tuple[tuple[str, float, float], ...] = (("high", 0.7, 2.0), ("mid", 0.4,
 INVERT_T_FLOOR = 0.05
 """T is clamped here before dividing (as single-image dehazing does): where the haze is nearly
 opaque the inversion only amplifies noise, for the truth as for a model."""
+OBSERVABLE_T = INVERT_T_FLOOR
+"""True T below which a pixel's clean colour is taken as not observed: under 5 % of it reaches the
+camera, less than 13 levels of an 8-bit photo (the inversion's floor, for the same reason)."""
 
 
 def reference_map(dm: DataManager, key: str, idx: int, size: tuple[int, int]) -> Tensor | None:
@@ -53,6 +61,18 @@ def reference_map(dm: DataManager, key: str, idx: int, size: tuple[int, int]) ->
 def invert(hazy: Tensor, transmittance: Tensor, scattering: Tensor) -> Tensor:
     """J = (I - S) / max(T, floor), clamped to [0, 1]; hazy/scattering [H, W, 3], T [H, W, 1]."""
     return ((hazy - scattering) / transmittance.clamp_min(INVERT_T_FLOOR)).clamp(0.0, 1.0)
+
+
+def observable_scores(pred: Tensor, reference: Tensor, true_t: Tensor) -> dict[str, float | None]:
+    """Restoration PSNR over the pixels whose clean colour reaches the camera (true T >=
+    ``OBSERVABLE_T``) and their share of the view; pred/reference [H, W, 3], true_t [H, W, 1].
+    The PSNR is None where no pixel is observable."""
+    mask = true_t[..., 0] >= OBSERVABLE_T  # [H, W]
+    n = int(mask.sum())
+    share = n / mask.numel()
+    if n == 0:
+        return {"psnr": None, "share": share}
+    return {"psnr": float(psnr(pred[mask], reference[mask])), "share": share}
 
 
 @dataclass

@@ -43,6 +43,12 @@ def markdown_report(report: dict[str, Any]) -> str:
                 f"| baseline: {LABELS[name]} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
                 f"{r['views']} |"
             )
+    obs = report.get("observable")
+    if obs is not None:
+        lines.append(
+            f"| restoration, observable pixels (true T >= {obs['t_floor']:g}, {100 * obs['share']:.0f} % of "
+            f"the image) | {_fmt(obs['psnr'], 2)} | n/a | n/a | {obs['views']} |"
+        )
     lp = report.get("lpips", {})
     if not lp.get("available", False):
         lines += ["", f"LPIPS not computed: {lp.get('reason', 'unavailable')}"]

@@ -222,6 +222,7 @@ class AblationRunner:
             "reconstruction": report.get("reconstruction"),
             "binned": report.get("binned"),
             "medium": report.get("medium"),
+            "observable": report.get("observable"),
             "baselines": report.get("baselines"),
         }
 

@@ -16,7 +16,14 @@ from components.losses.dcp import dehaze, estimate_dcp
 from pipelines.engine.contract import Pipeline, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.evaluate import evaluate, evaluate_split
-from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, T_BINS, reference_map
+from pipelines.engine.medium_recovery import (
+    OBSERVABLE_T,
+    REFERENCE_S_KEY,
+    REFERENCE_T_KEY,
+    T_BINS,
+    observable_scores,
+    reference_map,
+)
 
 DELTA = 0.1
 """Error added to the clean render inside the low-visibility third of each view."""
@@ -195,3 +202,38 @@ def test_no_clean_references_means_no_baselines(dm):
     bare.clean_image = lambda idx: None  # type: ignore[method-assign]
     report = evaluate(ScriptedPipeline(dm, medium=False), bare, "test")  # renders from dm, scored on bare
     assert report["baselines"] is None and report["restoration"] is None
+
+
+def test_observable_scores_leave_out_what_the_haze_hides():
+    ref = 0.8 * torch.rand(4, 6, 3, generator=torch.Generator().manual_seed(0))  # + 0.1 stays below 1
+    true_t = torch.full((4, 6, 1), 0.5)
+    true_t[:, :3] = OBSERVABLE_T / 2  # the left half is behind nearly opaque haze
+    pred = ref.clone()
+    pred[:, :3] = 1.0 - pred[:, :3]  # wrong only where the photo cannot show the answer
+    out = observable_scores(pred, ref, true_t)
+    assert out["share"] == 0.5 and out["psnr"] == 100.0
+    pred[:, 3:] += 0.1  # now also wrong where it is observed: 0.1 everywhere there -> 20 dB
+    assert observable_scores(pred, ref, true_t)["psnr"] == pytest.approx(20.0, abs=0.05)
+    assert observable_scores(pred, ref, torch.zeros(4, 6, 1)) == {"psnr": None, "share": 0.0}
+
+
+@pytest.mark.parametrize("medium", [True, False])
+def test_observable_protocol_for_every_method(dm, medium):
+    report = evaluate(ScriptedPipeline(dm, medium=medium), dm, "test")
+    psnrs, shares = [], []
+    for i in dm.scene.test_indices:  # recomputed from the maps, independently of the protocol
+        pipe = ScriptedPipeline(dm)
+        clean = pipe.render(dm.camera(i))["clean"].numpy()
+        ref = dm.clean_image(i).numpy()
+        t = reference_map(dm, REFERENCE_T_KEY, i, ref.shape[:2])[..., 0].numpy()
+        m = t >= OBSERVABLE_T
+        shares.append(m.mean())
+        psnrs.append(-10 * math.log10(float(((clean - ref) ** 2).mean(-1)[m].mean())))
+    obs = report["observable"]
+    assert obs["views"] == len(dm.scene.test_indices) and obs["t_floor"] == OBSERVABLE_T
+    assert obs["psnr"] == pytest.approx(np.mean(psnrs), abs=1e-3)
+    assert obs["share"] == pytest.approx(np.mean(shares), abs=1e-6)
+    assert set(report["per_view"][0]["observable"]) == {"psnr", "share"}
+    bare = DataManager(load_scene(DataConfig(data=dm.scene.root)), torch.device("cpu"))
+    bare.scene.extra_paths.pop(REFERENCE_T_KEY)
+    assert evaluate(ScriptedPipeline(bare, medium=medium), bare, "test")["observable"] is None

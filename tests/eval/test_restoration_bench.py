@@ -28,10 +28,12 @@ def test_the_set_covers_every_layout_and_hazy_preset():
 
 def test_rows_average_seeds_and_targets_name_the_worst_scene():
     results = {
-        42: [_r("a", "tri-dehaze", 24.0, medium={"t_mae": 0.04, "s_mae": 0.02}), _r("a", "vanilla-gs", 12.0),
+        42: [_r("a", "tri-dehaze", 24.0, medium={"t_mae": 0.04, "s_mae": 0.02}, observable={"psnr": 26.0, "share": 0.8}),
+             _r("a", "vanilla-gs", 12.0),
              _r("a", "dcp-gs", 16.0), _r("b", "tri-dehaze", 19.0, medium={"t_mae": 0.08, "s_mae": 0.02}),
              _r("b", "vanilla-gs", 11.0), _r("b", "dcp-gs", 0.0, status="failed")],
-        7: [_r("a", "tri-dehaze", 22.0, medium={"t_mae": 0.06, "s_mae": 0.02}), _r("a", "vanilla-gs", 14.0),
+        7: [_r("a", "tri-dehaze", 22.0, medium={"t_mae": 0.06, "s_mae": 0.02}, observable={"psnr": 24.0, "share": 0.8}),
+            _r("a", "vanilla-gs", 14.0),
             _r("a", "dcp-gs", 18.0)],
     }  # fmt: skip
     rows = scene_rows(results, ["a", "b"], "tri-dehaze")
@@ -41,6 +43,7 @@ def test_rows_average_seeds_and_targets_name_the_worst_scene():
     )
     assert a["vanilla-gs"] == 13.0 and a["dcp-gs"] == 17.0 and a["t_mae"] == pytest.approx(0.05)
     assert b["seeds"] == 1 and b["spread"] is None and b["dcp-gs"] is None  # the failed run is no number
+    assert a["observable"] == 25.0 and a["observable_share"] == 0.8 and b["observable"] is None
     checks = {c["target"]: c for c in check_targets(rows, Targets())}
     assert (
         checks["mean restoration PSNR (dB)"]["value"] == 21.0
@@ -53,7 +56,10 @@ def test_rows_average_seeds_and_targets_name_the_worst_scene():
     assert checks["mean T MAE"]["value"] == pytest.approx(0.065) and checks["mean T MAE"]["met"] is False
     assert checks["mean S MAE"]["met"] is True
     md = markdown(rows, list(checks.values()), "tri-dehaze", [42, 7])
-    assert "| a | 10.00 | 15.00 | 13.00 | 17.00 | 23.00 (2.00) |" in md and "| +10.00 | +6.00 | +8.00 |" in md
+    assert (
+        "| a | 10.00 | 15.00 | 13.00 | 17.00 | 23.00 (2.00) |" in md
+        and "| +10.00 | +6.00 | +8.00 | 25.00 (80 %) |" in md
+    )
     assert "| mean T MAE | 0.065 | 0.05 | no |" in md
 
 
@@ -70,6 +76,7 @@ def test_td_bench_restoration_end_to_end(tmp_path):
     (row,) = summary["rows"]
     assert row["scene"] == "room-uniform" and row["seeds"] == 2 and set(row["per_seed"]) == {"1", "2"}
     assert row["psnr"] > 5 and row["vanilla-gs"] > 5 and row["dcp_2d"] > 5 and 0 <= row["t_mae"] <= 1
+    assert row["observable"] > 5 and 0 < row["observable_share"] <= 1
     assert "| room-uniform |" in (out / "restoration.md").read_text()
     bad = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", "--scenes", "moon-fog",
                           "--set-dir", str(tmp_path / "set2")], capture_output=True, text=True, timeout=120)  # fmt: skip
