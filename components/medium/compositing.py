@@ -60,6 +60,11 @@ class CompositeConfig:
     medium's bounding box, so background rays cross the whole modelled medium."""
     depth_gradient: bool = False
     """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
+    coverage_gradient: bool = False
+    """Let the composite's gradient flow into the coverage (alpha) that blends each pixel's end
+    depth to the far bound. Detached, a less covered pixel marches further into the haze without
+    the gradient knowing it: lowering a surface's opacity seems only to dim it, and surfaces drift
+    half transparent (docs/results/coverage_diagnosis.md)."""
     t_floor: Annotated[float, Range(0.0, 0.5, lo_open=True)] = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
     background: Literal["far", "infinite"] = "far"
@@ -176,7 +181,7 @@ class MediumCompositor:
     def end_depth(self, depth: Tensor, alpha: Tensor, far: float) -> Tensor:
         """Per-pixel z where the ray stops: the surface, blended to ``far`` by transparency."""
         d = depth if self.config.depth_gradient else depth.detach()
-        a = alpha.detach().clamp(0.0, 1.0)
+        a = (alpha if self.config.coverage_gradient else alpha.detach()).clamp(0.0, 1.0)
         return (a * d.clamp(min=0.0, max=far) + (1.0 - a) * far).clamp_min(1e-6)  # [H, W, 1]
 
     def __call__(self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor) -> MediumRender:

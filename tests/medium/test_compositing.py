@@ -154,6 +154,20 @@ def test_gradients_reach_medium_and_depth_only_when_asked(device):
             assert z.grad is None
 
 
+def test_coverage_gradient_only_when_asked_and_it_says_less_cover_means_more_haze(device):
+    cam = _camera(device)
+    field = AnalyticField(b0=0.3, b1=0.2).to(device)
+    z = _depth_with_edges(device)
+    for flag in (False, True):
+        alpha = torch.full_like(z, 0.8).requires_grad_(True)
+        med = MediumCompositor(CompositeConfig(coverage_gradient=flag))(field, cam, z, alpha)
+        med.transmittance.sum().backward()
+        if flag:  # less coverage: the ray ends nearer the far bound, so T falls
+            assert alpha.grad is not None and float(alpha.grad.min()) >= 0 and float(alpha.grad.sum()) > 0
+        else:
+            assert alpha.grad is None
+
+
 def test_none_medium_and_homogeneous_helper(device):
     from components.medium.fields import NoMedium  # noqa: PLC0415 - registered by the fields module
 
