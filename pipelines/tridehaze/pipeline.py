@@ -171,6 +171,13 @@ class _PriorPlan:
         return _PriorPlan(uses_medium, dehaze_inputs, source if needs_depth else "none", needs_dcp)
 
 
+def step_background(seed: int, step: int) -> Tensor:
+    """The random background colour [3] of a training step: a function of (seed, step) alone, so a
+    resumed run draws the same colours as an uninterrupted one."""
+    gen = torch.Generator(device="cpu").manual_seed(seed * 1_000_003 + step)
+    return torch.rand(3, generator=gen)
+
+
 class GaussianPipeline(Pipeline):
     """3D Gaussians (+ optional medium) + rasterizer + losses on one view per step."""
 
@@ -212,7 +219,7 @@ class GaussianPipeline(Pipeline):
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)
         )
-        self._gen = torch.Generator(device="cpu").manual_seed(seed)
+        self._seed = seed
         self.depth_source = plan.depth_source
         self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
@@ -274,7 +281,7 @@ class GaussianPipeline(Pipeline):
         target = self.training_target(idx)  # [H, W, 3]
         bg = self.background
         if cfg.random_background:
-            bg = torch.rand(3, generator=self._gen).to(bg)
+            bg = step_background(self._seed, step).to(bg)
         cam = dm.camera(idx)
         with record_function("td.rasterize"):  # stage labels for torch.profiler
             out = self._rasterize(cam, step, bg)

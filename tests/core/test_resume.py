@@ -43,11 +43,12 @@ def _trainer(cfg, resume=None) -> Trainer:
     return t
 
 
-def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path):
-    full = _trainer(_cfg(scene, tmp_path / "a"))
+@pytest.mark.parametrize("extra", [(), ("--pipeline.random-background",)], ids=["black", "random-bg"])
+def test_interrupted_then_resumed_equals_uninterrupted(scene, tmp_path, extra):
+    full = _trainer(_cfg(scene, tmp_path / "a", *extra))
     full.train()
 
-    part = _trainer(_cfg(scene, tmp_path / "b"))
+    part = _trainer(_cfg(scene, tmp_path / "b", *extra))
     real = part.pipeline.train_loss
 
     def stop_at_5(step):
