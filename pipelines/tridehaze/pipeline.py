@@ -18,7 +18,6 @@ from torch.profiler import record_function
 from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
-from components.losses.coverage import coverage_entropy
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
@@ -99,10 +98,6 @@ class GaussianPipelineConfig(PipelineConfig):
     penalises only T below it, since the prior under-estimates t on surfaces without dark pixels;
     ``lower-own-light`` the same bound recomputed each step with the medium's own light along each
     ray as the airlight (one airlight per image over-estimates t where the haze light is dimmer)."""
-    lambda_coverage: Annotated[float, NonNegative] = 0.0
-    """Weight of the binary entropy of each pixel's coverage (rendered alpha), both stages: pushes
-    surfaces to opaque and empty background to clear, so coverage cannot act as a per-pixel haze
-    knob (a half-covered pixel marches further into the haze); 0 = off."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
@@ -309,10 +304,6 @@ class GaussianPipeline(Pipeline):
                 metrics["depth_corr"] = 1.0 - corr.detach()
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
-        if cfg.lambda_coverage > 0 and med is not None:
-            cover = coverage_entropy(out.alpha[0])
-            loss = loss + cfg.lambda_coverage * cover
-            metrics["coverage_entropy"] = cover.detach()
         if med is not None:
             T = med.pixel_transmittance()[..., 0]  # [H, W]
             if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:

@@ -369,12 +369,3 @@ def test_dark_channel_bounds_train_soundly(scenes, tmp_path, device, bound):
     assert torch.isfinite(res.metrics["dcp"]) and float(res.metrics["dcp"]) >= 0.0
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
-
-
-def test_coverage_entropy_trains_soundly(scenes, tmp_path, device):
-    trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.lambda-coverage", "0.05")
-    res = trainer.pipeline.train_loss(0)
-    ent = float(res.metrics["coverage_entropy"])
-    assert 0.0 <= ent <= math.log(2.0) + 1e-6
-    _check_one_step(trainer)
-    _assert_sound(trainer, trainer.train().metrics)
