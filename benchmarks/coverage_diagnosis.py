@@ -14,13 +14,12 @@ lets coverage act as a per-pixel haze knob (a less covered pixel marches further
 
     python benchmarks/coverage_diagnosis.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
 
-Writes OUT.json and OUT.md (one row per run).
+Writes OUT.json, OUT.md (one row per run) and OUT.png.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -30,6 +29,8 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
+
+from bench_output import write_rows_and_table  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -89,6 +90,30 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """T MAE per end depth (bars) and the share of pixels less than 95 % covered (dots), per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows)), 4))
+    x = np.arange(len(rows))
+    for k, name in enumerate(("rendered", "opaque", "true")):
+        vals = [r["t_mae"][name] if r["t_mae"][name] is not None else np.nan for r in rows]
+        ax.bar(x + (k - 1) * 0.27, vals, 0.27, label=f"T MAE, {name} end depth")
+    ax2 = ax.twinx()
+    ax2.plot(x, [r["share_alpha_below_0.95"] for r in rows], "ko", label="pixels < 95 % covered")
+    ax2.set_ylim(0, 1)
+    ax2.set_ylabel("share of test pixels less than 95 % covered")
+    ax.set_xticks(x, [f"{r['scene']}\n{r['method']}" for r in rows], fontsize=6, rotation=60)
+    ax.set_ylabel("T mean absolute error")
+    ax.legend(fontsize=7, loc="upper left")
+    ax2.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
@@ -98,12 +123,11 @@ def main() -> None:
     rows = [diagnose(c) for c in args.runs]
     table = markdown(rows)
     print(table)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.with_suffix(".json").write_text(json.dumps(rows, indent=2))
-    args.output.with_suffix(".md").write_text(
-        "# Transmittance error by end depth, and coverage\n\n`python benchmarks/coverage_diagnosis.py`\n\n"
-        + table
-    )
+    write_rows_and_table(
+        args.output, rows, "Transmittance error by end depth, and coverage",
+        "`python benchmarks/coverage_diagnosis.py`", table,
+    )  # fmt: skip
+    plot(rows, args.output.with_suffix(".png"))
 
 
 if __name__ == "__main__":

@@ -22,6 +22,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_output import write_rows_and_table  # noqa: E402
+
 from components.losses.dcp import estimate_dcp  # noqa: E402
 
 T_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 0.8), (0.8, 1.01))
@@ -110,12 +112,10 @@ def main() -> None:
         raise SystemExit("no scene folder with a transforms.json among --scenes")
     table = markdown(rows)
     print(table)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.with_suffix(".json").write_text(json.dumps(rows, indent=2))
-    args.output.with_suffix(".md").write_text(
-        "# Dark-channel transmittance against the truth\n\n"
-        "`python benchmarks/dcp_prior_bias.py` (signed error: estimate minus truth).\n\n" + table
-    )
+    write_rows_and_table(
+        args.output, rows, "Dark-channel transmittance against the truth",
+        "`python benchmarks/dcp_prior_bias.py` (signed error: estimate minus truth).", table,
+    )  # fmt: skip
     plot(rows, args.output.with_suffix(".png"))
 
 
