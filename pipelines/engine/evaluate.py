@@ -118,6 +118,11 @@ def _scores(pred: Tensor, target: Tensor, lpips_fn: LpipsFn | None) -> dict[str,
     }
 
 
+def _baseline_scores(hazy: Tensor, reference: Tensor, lpips_fn: LpipsFn | None) -> dict[str, Any]:
+    """Restoration scores of the single-image baselines of one hazy test photo."""
+    return {k: _scores(im, reference, lpips_fn) for k, im in baseline_images(hazy).items()}
+
+
 @dataclass
 class ViewRender:
     """What a per-view callback receives (e.g. to write side-by-side images)."""
@@ -161,17 +166,15 @@ def evaluate(
                 bin_source = source
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
             if hazy_in is not None:
-                row["baselines"] = {
-                    k: _scores(im, clean_ref, lpips_fn) for k, im in baseline_images(hazy_in).items()
-                }
+                row["baselines"] = _baseline_scores(hazy_in, clean_ref, lpips_fn)
         true_t, true_s = _true_medium(dm, idx, tuple(out["clean"].shape[:2]))  # type: ignore[arg-type]
         if clean_ref is not None and true_t is not None:
             row["observable"] = observable_scores(out["clean"], clean_ref, true_t)
-        if not medium:
-            true_t = true_s = None
+        true_t, true_s = (true_t, true_s) if medium else (None, None)
         if true_t is not None:
-            model_t, model_s = out["transmittance"], out["scattering"]
-            row["medium"] = recovery.add(model_t, model_s, true_t, true_s, hazy_in, clean_ref)
+            row["medium"] = recovery.add(
+                out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref
+            )
         if hazy_in is not None:
             row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
         per_view.append(row)

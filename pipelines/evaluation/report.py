@@ -43,12 +43,7 @@ def markdown_report(report: dict[str, Any]) -> str:
                 f"| baseline: {LABELS[name]} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
                 f"{r['views']} |"
             )
-    obs = report.get("observable")
-    if obs is not None:
-        lines.append(
-            f"| restoration, observable pixels (true T >= {obs['t_floor']:g}, {100 * obs['share']:.0f} % of "
-            f"the image) | {_fmt(obs['psnr'], 2)} | n/a | n/a | {obs['views']} |"
-        )
+    lines += _observable_lines(report.get("observable"))
     lp = report.get("lpips", {})
     if not lp.get("available", False):
         lines += ["", f"LPIPS not computed: {lp.get('reason', 'unavailable')}"]
@@ -82,6 +77,16 @@ def markdown_report(report: dict[str, Any]) -> str:
             )
         lines.append(f"| {row['name']} | {cells[0]} | {cells[1]} |")
     return "\n".join(lines) + "\n"
+
+
+def _observable_lines(obs: dict[str, Any] | None) -> list[str]:
+    """The summary row of restoration over observable pixels (only where true T maps exist)."""
+    if obs is None:
+        return []
+    return [
+        f"| restoration, observable pixels (true T >= {obs['t_floor']:g}, {100 * obs['share']:.0f} % of "
+        f"the image) | {_fmt(obs['psnr'], 2)} | n/a | n/a | {obs['views']} |"
+    ]
 
 
 def _medium_lines(med: dict[str, Any] | None, per_view: list[dict[str, Any]]) -> list[str]:
