@@ -167,10 +167,9 @@ def evaluate(
                 row["binned"] = binned.add(out["clean"], clean_ref, trans)
             if hazy_in is not None:
                 row["baselines"] = _baseline_scores(hazy_in, clean_ref, lpips_fn)
-        true_t, true_s = _true_medium(dm, idx, tuple(out["clean"].shape[:2]))  # type: ignore[arg-type]
-        if clean_ref is not None and true_t is not None:
-            row["observable"] = observable_scores(out["clean"], clean_ref, true_t)
-        true_t, true_s = (true_t, true_s) if medium else (None, None)
+        observable, true_t, true_s = _truth(dm, idx, out["clean"], clean_ref, medium)
+        if observable is not None:
+            row["observable"] = observable
         if true_t is not None:
             row["medium"] = recovery.add(
                 out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref
@@ -210,6 +209,22 @@ def _column(per_view: list[dict[str, Any]], *keys: str) -> list[Any]:
     return out
 
 
+def _truth(
+    dm: DataManager, idx: int, clean: Tensor, reference: Tensor | None, medium: bool
+) -> tuple[dict[str, float | None] | None, Tensor | None, Tensor | None]:
+    """From the dataset's true maps of view ``idx``: the observable-pixel scores of the clean render
+    [H, W, 3] (every method), and the true T [H, W, 1] and S [H, W, 3] for the medium protocol
+    (methods with a medium only; None where the dataset has none)."""
+    size: tuple[int, int] = tuple(clean.shape[:2])  # type: ignore[assignment]
+    true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)
+    observable = None
+    if reference is not None and true_t is not None:
+        observable = observable_scores(clean, reference, true_t)
+    if not medium:
+        return observable, None, None
+    return observable, true_t, reference_map(dm, REFERENCE_S_KEY, idx, size)
+
+
 def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:
     """Mean over views of the observable-pixel PSNR (views with such pixels) and share."""
     if not rows:
@@ -221,14 +236,6 @@ def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | No
         "t_floor": OBSERVABLE_T,
         "views": len(rows),
     }
-
-
-def _true_medium(dm: DataManager, idx: int, size: tuple[int, int]) -> tuple[Tensor | None, Tensor | None]:
-    """The dataset's true T [H, W, 1] and S [H, W, 3] of view ``idx`` at ``size`` (None where it
-    has none)."""
-    true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
-    true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)  # type: ignore[arg-type]
-    return true_t, true_s
 
 
 def _bin_transmittance(
