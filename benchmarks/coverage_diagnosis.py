@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import write_rows_and_table  # noqa: E402
+from bench_output import publish  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -117,17 +117,14 @@ def plot(rows: list[dict], path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
-    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json and .md")
+    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
     args = ap.parse_args()
     torch.set_grad_enabled(False)
     rows = [diagnose(c) for c in args.runs]
-    table = markdown(rows)
-    print(table)
-    write_rows_and_table(
+    publish(
         args.output, rows, "Transmittance error by end depth, and coverage",
-        "`python benchmarks/coverage_diagnosis.py`", table,
+        "`python benchmarks/coverage_diagnosis.py`", markdown(rows), plot,
     )  # fmt: skip
-    plot(rows, args.output.with_suffix(".png"))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_output import write_rows_and_table  # noqa: E402
+from bench_output import publish  # noqa: E402
 
 from components.losses.dcp import estimate_dcp  # noqa: E402
 
@@ -110,13 +110,10 @@ def main() -> None:
     rows = [scene_errors(s) for s in args.scenes if (s / "transforms.json").exists()]
     if not rows:
         raise SystemExit("no scene folder with a transforms.json among --scenes")
-    table = markdown(rows)
-    print(table)
-    write_rows_and_table(
+    publish(
         args.output, rows, "Dark-channel transmittance against the truth",
-        "`python benchmarks/dcp_prior_bias.py` (signed error: estimate minus truth).", table,
+        "`python benchmarks/dcp_prior_bias.py` (signed error: estimate minus truth).", markdown(rows), plot,
     )  # fmt: skip
-    plot(rows, args.output.with_suffix(".png"))
 
 
 if __name__ == "__main__":
