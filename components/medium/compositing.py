@@ -252,7 +252,10 @@ class MediumCompositor:
             k = pos.detach().floor().clamp(max=K - 1).long()
             f = pos - k.to(pos)  # fraction of interval k covered
             row = table.index_select(0, (rays * (K + 1) + k).reshape(-1)).reshape(4, H * W, 9)
-            Tau_k, tau_k, T_k, S_k, L_k = row[..., 0], row[..., 1], row[..., 2], row[..., 3:6], row[..., 6:9]
+            # one split, not five slices: each slice's backward zero-fills a full [4, H*W, 9]
+            # gradient (5 per read, 15-30 % of a CPU step at 320x240); split's backward is one cat
+            Tau_k, tau_k, T_k, S_k, L_k = row.split((1, 1, 1, 3, 3), dim=-1)
+            Tau_k, tau_k, T_k = Tau_k[..., 0], tau_k[..., 0], T_k[..., 0]  # [4, H*W] each
             t_ray = Tau_k + f * tau_k  # [4, H*W] optical depth along the coarse ray to z
             s_ray = S_k + (T_k * -torch.expm1(-f * tau_k))[..., None] * L_k  # [4, H*W, 3]
             t_pix = t_ray * r
