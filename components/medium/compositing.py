@@ -24,6 +24,7 @@ supervised by the depth prior instead (``depth_gradient`` turns the gradient on)
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Annotated, Literal
@@ -141,10 +142,23 @@ def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
     return d_cam @ c2w[:3, :3].T, c2w[:3, 3]
 
 
+def _pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    """[H, W] path length per unit z of each pixel-centre ray, sqrt(1 + x^2 + y^2) in normalised
+    image coordinates: the rotation leaves lengths alone, so only the intrinsics matter."""
+    fx, fy, cx, cy = (float(v[0]) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
+    dx = (torch.arange(W, device=device, dtype=dtype) + 0.5 - cx) / fx  # [W]
+    dy = (torch.arange(H, device=device, dtype=dtype) + 0.5 - cy) / fy  # [H]
+    return torch.sqrt(1.0 + dx[None, :].square() + dy[:, None].square())
+
+
+@functools.lru_cache(maxsize=8)
 def _bilinear_neighbours(
     H: int, W: int, h: int, w: int, s: int, device: torch.device, dtype: torch.dtype
 ) -> tuple[Tensor, Tensor]:
-    """For each pixel, the 4 nearest coarse rays (block centres) and bilinear weights: [4, H*W] each."""
+    """For each pixel, the 4 nearest coarse rays (block centres) and bilinear weights: [4, H*W] each.
+
+    Cached: they depend on the image and grid sizes only (a few per run), and rebuilding them cost
+    ~10 small ops per step. Callers must not write into the returned tensors."""
     px = (torch.arange(W, device=device, dtype=dtype) + 0.5) / s - 0.5  # [W] in coarse-ray units
     py = (torch.arange(H, device=device, dtype=dtype) + 0.5) / s - 0.5  # [H]
     x0 = px.floor().clamp(0, w - 1).long()
@@ -235,12 +249,7 @@ class MediumCompositor:
         # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
         # rescaled to the pixel's own path length (exact for a homogeneous medium)
         rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
-        pix_dirs, _ = _pixel_dirs(
-            camera,
-            torch.arange(W, device=z.device, dtype=z.dtype) + 0.5,
-            torch.arange(H, device=z.device, dtype=z.dtype) + 0.5,
-        )
-        pix_len = pix_dirs.norm(dim=-1).reshape(1, -1)  # [1, H*W] path length per unit z
+        pix_len = _pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(1, -1)  # [1, H*W]
         ray_len = step_len.reshape(-1)[rays]  # [4, H*W]
         zfar_r = zfar.reshape(-1)[rays]  # [4, H*W]
         r = pix_len / ray_len  # ~1: obliquity of the pixel vs the coarse ray
