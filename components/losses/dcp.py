@@ -97,16 +97,23 @@ def dcp_transmittance_loss(
     T_dcp: Tensor,  # noqa: N803
     mask: Tensor | None = None,
     lower_bound: bool = False,
+    upper_weight: float = 0.0,
 ) -> Tensor:
     """Mean squared error between the rendered transmittance and the DCP estimate, both [H, W].
 
     ``lower_bound``: penalise only T below the estimate. With the true airlight and omega = 1 the
     dark channel can only under-estimate t (min(I / A) = t min(J / A) + 1 - t >= 1 - t), and it
     does so wherever the clean patch has no dark pixel (bright or textured surfaces, indoors).
+    ``upper_weight``: with ``lower_bound``, T above the estimate still costs this fraction of the
+    squared error (most clean patches do have a dark pixel, so the bound is usually close; 0: a
+    pure bound, 1: the two-sided loss).
     The mask is a weight (no boolean indexing, so no host sync); an empty mask gives 0.
     """
     diff = T_dcp.to(T_hat) - T_hat  # [H, W]
-    diff = (diff.clamp_min(0.0) if lower_bound else diff).square()
+    if lower_bound:
+        diff = diff.clamp_min(0.0).square() + upper_weight * diff.clamp_max(0.0).square()
+    else:
+        diff = diff.square()
     if mask is None:
         return diff.mean()
     w = mask.to(diff.dtype)

@@ -44,7 +44,7 @@ from pipelines.tridehaze.priors import (
 )
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.warmup import warmup_depths
-from tridehaze_plugin.config import NonNegative, RegistryChoice
+from tridehaze_plugin.config import NonNegative, Range, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
@@ -98,6 +98,10 @@ class GaussianPipelineConfig(PipelineConfig):
     penalises only T below it, since the prior under-estimates t on surfaces without dark pixels;
     ``lower-own-light`` the same bound recomputed each step with the medium's own light along each
     ray as the airlight (one airlight per image over-estimates t where the haze light is dimmer)."""
+    dcp_upper_weight: Annotated[float, Range(0.0, 1.0)] = 0.0
+    """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
+    channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
+    channel is close, drifts to too little haze under a pure bound."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
@@ -310,7 +314,13 @@ class GaussianPipeline(Pipeline):
                 t_prior, mask = prior.t_dcp, None
                 if cfg.dcp_bound == "lower-own-light":
                     t_prior, mask = self._own_light_bound(target, med)
-                dcp = dcp_transmittance_loss(T, t_prior, mask, lower_bound=cfg.dcp_bound != "two-sided")
+                dcp = dcp_transmittance_loss(
+                    T,
+                    t_prior,
+                    mask,
+                    lower_bound=cfg.dcp_bound != "two-sided",
+                    upper_weight=cfg.dcp_upper_weight,
+                )
                 loss = loss + cfg.lambda_dcp * dcp
                 metrics["dcp"] = dcp.detach()
             reg = self.medium.regularizer() if self._medium_trainable(step) else None

@@ -129,3 +129,13 @@ def test_dark_channel_bound_with_the_haze_light_per_pixel():
     assert float(glob[:, W // 2 + 2 :].min()) > t + 0.2  # one airlight: far above the truth
     soft = dark_channel_bound(i, light, patch=3)  # omega 0.95 keeps a little haze: never above t
     assert float(soft.max()) <= t + 0.05 * (1 - t) + 1e-6
+
+
+@pytest.mark.parametrize("upper_weight", [0.0, 0.25, 1.0])
+def test_transmittance_bound_with_an_upper_weight_is_between_the_bound_and_the_mse(device, upper_weight):
+    t = torch.tensor([[0.2, 0.5], [0.8, 0.5]], device=device)
+    t_dcp = torch.full((2, 2), 0.5, device=device)
+    loss = dcp_transmittance_loss(t, t_dcp, lower_bound=True, upper_weight=upper_weight)
+    assert loss.item() == pytest.approx((0.3**2 + upper_weight * 0.3**2) / 4)
+    if upper_weight == 1.0:  # the two-sided loss
+        assert loss.item() == pytest.approx(dcp_transmittance_loss(t, t_dcp).item())

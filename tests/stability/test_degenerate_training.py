@@ -369,3 +369,24 @@ def test_dark_channel_bounds_train_soundly(scenes, tmp_path, device, bound):
     assert torch.isfinite(res.metrics["dcp"]) and float(res.metrics["dcp"]) >= 0.0
     _check_one_step(trainer)
     _assert_sound(trainer, trainer.train().metrics)
+
+
+def test_dark_channel_bound_with_full_upper_weight_is_the_two_sided_loss(scenes, tmp_path, device):
+    """``--pipeline.dcp-upper-weight`` reaches the loss: 1 turns the ``lower`` bound back into the
+    two-sided loss (same scene, same seed, same first step)."""
+    two = _trainer(scenes["sky"], tmp_path / "two", device)
+    full = _trainer(
+        scenes["sky"],
+        tmp_path / "full",
+        device,
+        "--pipeline.dcp-bound",
+        "lower",
+        "--pipeline.dcp-upper-weight",
+        "1.0",
+    )
+    bound = _trainer(scenes["sky"], tmp_path / "bound", device, "--pipeline.dcp-bound", "lower")
+    for t in (two, full, bound):  # almost no haze: T is above the dark channel's estimate
+        t.pipeline.medium.initialize(1e-4, torch.full((3,), 0.7))
+    d_two, d_full, d_bound = (float(t.pipeline.train_loss(0).metrics["dcp"]) for t in (two, full, bound))
+    assert d_two == pytest.approx(d_full, rel=1e-6)
+    assert d_bound < d_two  # the pure bound drops the side above the estimate
