@@ -102,6 +102,11 @@ class MediumRender:
     Gaussians do not cover the pixel (``clean_sky``); None: the background colour is shown.
     Marched to the far bound where the coverage is below ``OPEN_SKY_COVERAGE``, continued from
     the ray's end elsewhere; weighted by 1 - coverage wherever it is used."""
+    scattered_light: Tensor | None = None
+    """[3] the mean light the view's rays scatter towards the camera, weighted by each sample's
+    (detached) share of the in-scattering, so its gradient reaches the light only and not the
+    extinction; None for media that do not march rays. The light anchor compares it with the dark
+    channel's airlight of the view."""
     at_infinity: bool = False
     """The uncovered share of each pixel sees the medium to infinity (``background infinite``):
     the clean render composited is premultiplied (no background colour) and T is the
@@ -276,7 +281,9 @@ class MediumCompositor:
 
         tau_p, S_p, _ = read(z.reshape(1, -1))  # [H*W], [H*W, 3]
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None])
+        share = (Tb[:, :-1] * -torch.expm1(-tau)).detach()  # [R, K] each sample's share of S
+        scattered = (share[..., None] * light).sum((0, 1)) / share.sum().clamp_min(1e-6)  # [3]
+        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=scattered)
         if not (infinite or sky_shown):
             return surface
         # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
@@ -317,8 +324,9 @@ class MediumCompositor:
         S = cover * surface.scattering + (1.0 - cover) * sky
         shown = sky if self.shows_sky() else None
         return MediumRender(
-            surface.transmittance, S, surface.end_depth, coverage=cover.detach(), sky=shown, at_infinity=True
-        )
+            surface.transmittance, S, surface.end_depth, coverage=cover.detach(), sky=shown,
+            scattered_light=surface.scattered_light, at_infinity=True,
+        )  # fmt: skip
 
 
 def homogeneous_along_rays(
@@ -336,7 +344,9 @@ def homogeneous_along_rays(
     path = end_depth[..., 0] * dirs.norm(dim=-1)  # [H, W]
     tau = beta * path
     T = torch.exp(-tau).clamp_min(t_floor)
-    return MediumRender(T[..., None], light * -torch.expm1(-tau)[..., None], end_depth)
+    share = -torch.expm1(-tau)  # [H, W] scattered fraction
+    scattered = (share.detach()[..., None] * light).sum((0, 1)) / share.detach().sum().clamp_min(1e-6)  # [3]
+    return MediumRender(T[..., None], light * share[..., None], end_depth, scattered_light=scattered)
 
 
 def composite(clean: Tensor, medium: MediumRender) -> Tensor:

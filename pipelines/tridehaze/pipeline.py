@@ -102,6 +102,11 @@ class GaussianPipelineConfig(PipelineConfig):
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
     channel is close, drifts to too little haze under a pure bound."""
+    lambda_light: Annotated[float, NonNegative] = 0.0
+    """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
+    the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
+    drift with the haze amount (too bright under the two-sided loss, too dim under a lower bound,
+    on real photos whose airlight the dark channel gets right: docs/results/medium_recovery.md)."""
     freeze_step: int | None = None
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
@@ -309,28 +314,40 @@ class GaussianPipeline(Pipeline):
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
         if med is not None:
-            T = med.pixel_transmittance()[..., 0]  # [H, W]
-            if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
-                t_prior, mask = prior.t_dcp, None
-                if cfg.dcp_bound == "lower-own-light":
-                    t_prior, mask = self._own_light_bound(target, med)
-                dcp = dcp_transmittance_loss(
-                    T,
-                    t_prior,
-                    mask,
-                    lower_bound=cfg.dcp_bound != "two-sided",
-                    upper_weight=cfg.dcp_upper_weight,
-                )
-                loss = loss + cfg.lambda_dcp * dcp
-                metrics["dcp"] = dcp.detach()
-            reg = self.medium.regularizer() if self._medium_trainable(step) else None
-            if reg is not None:
-                loss = loss + reg
-            metrics["mean_T"] = T.detach().mean()
+            loss = loss + self._medium_priors(step, stage, target, med, prior, metrics)
         self._last = out
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
+
+    def _medium_priors(
+        self, step: int, stage: int, target: Tensor, med: MediumRender, prior: ViewPrior | None, metrics: dict
+    ) -> Tensor:
+        """The medium's own loss terms (dark-channel transmittance, light anchor, field regulariser);
+        their detached values go into ``metrics``."""
+        cfg = self.config
+        T = med.pixel_transmittance()[..., 0]  # [H, W]
+        loss = T.new_zeros(())
+        if stage == 1 and cfg.lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
+            t_prior, mask = prior.t_dcp, None
+            if cfg.dcp_bound == "lower-own-light":
+                t_prior, mask = self._own_light_bound(target, med)
+            lower = cfg.dcp_bound != "two-sided"
+            dcp = dcp_transmittance_loss(
+                T, t_prior, mask, lower_bound=lower, upper_weight=cfg.dcp_upper_weight
+            )
+            loss = loss + cfg.lambda_dcp * dcp
+            metrics["dcp"] = dcp.detach()
+        anchored = prior is not None and prior.airlight is not None and med.scattered_light is not None
+        if stage == 1 and cfg.lambda_light > 0 and anchored:
+            anchor = (med.scattered_light - prior.airlight).square().mean()
+            loss = loss + cfg.lambda_light * anchor
+            metrics["light_anchor"] = anchor.detach()
+        reg = self.medium.regularizer() if self._medium_trainable(step) else None
+        if reg is not None:
+            loss = loss + reg
+        metrics["mean_T"] = T.detach().mean()
+        return loss
 
     @staticmethod
     def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:

@@ -34,6 +34,7 @@ class ViewPrior:
     """What the losses compare against for one training view (all on the training device)."""
 
     t_dcp: Tensor | None = None  # [H, W] dark-channel transmittance (None: not computed)
+    airlight: Tensor | None = None  # [3] the view's dark-channel airlight (None: not computed)
     depth: Tensor | None = None  # [H, W] pseudo-depth (relative), None: no depth loss on this view
     depth_valid: Tensor | None = None  # [H, W] bool
 
@@ -133,6 +134,7 @@ def build_view_priors(
         prior = ViewPrior()
         if i in dcp:
             prior.t_dcp = torch.from_numpy(dcp[i].transmittance).float().to(dm.device)
+            prior.airlight = torch.from_numpy(dcp[i].airlight).float().to(dm.device)
         cam = dm.camera(i)
         H, W = int(cam.height[0]), int(cam.width[0])
         d = valid = None
