@@ -330,3 +330,35 @@ def test_compositor_gradients_match_finite_differences(stride):
         torch.tensor(0.55, dtype=torch.float64, requires_grad=True),
     )
     assert torch.autograd.gradcheck(render, inputs, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=True)
+
+
+@pytest.mark.parametrize("stride", [1, 4])
+def test_scattered_light_is_the_field_light_and_its_gradient_skips_the_extinction(device, stride):
+    """The light anchor's input: for a constant light it is that light, whatever the extinction, and
+    its gradient reaches the light only (the shares of the in-scattering are detached)."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.3, b1=0.2, light=0.6).to(device)
+    z = _depth_with_edges(device)
+    med = MediumCompositor(CompositeConfig(ray_stride=stride))(field, cam, z, torch.ones_like(z))
+    assert med.scattered_light.shape == (3,)
+    torch.testing.assert_close(
+        med.scattered_light, torch.full((3,), 0.6, device=device), rtol=1e-5, atol=1e-5
+    )
+    assert not med.scattered_light.requires_grad  # the light is a constant; only the scale is learnable
+
+    field = _InputsField().to(device)
+    scale = torch.tensor(1.0, device=device, requires_grad=True)
+    level = torch.tensor(0.5, device=device, requires_grad=True)
+    field.inputs = {"scale": scale, "level": level}
+    med = MediumCompositor(CompositeConfig(ray_stride=stride))(field, cam, z, torch.ones_like(z))
+    g_scale, g_level = torch.autograd.grad(med.scattered_light.sum(), (scale, level), allow_unused=True)
+    assert g_scale is None or float(g_scale.abs()) == 0.0
+    assert float(g_level) == pytest.approx(3.0, rel=1e-5)  # d/dlevel of the sum of 3 channels
+
+
+def test_scattered_light_of_the_per_pixel_helper(device):
+    cam = _camera(device)
+    beta = torch.full((H, W), 0.2, device=device)
+    light = torch.full((H, W, 3), 0.4, device=device)
+    med = homogeneous_along_rays(beta, light, cam, _depth_with_edges(device))
+    torch.testing.assert_close(med.scattered_light, torch.full((3,), 0.4, device=device))

@@ -390,3 +390,23 @@ def test_dark_channel_bound_with_full_upper_weight_is_the_two_sided_loss(scenes,
     d_two, d_full, d_bound = (float(t.pipeline.train_loss(0).metrics["dcp"]) for t in (two, full, bound))
     assert d_two == pytest.approx(d_full, rel=1e-6)
     assert d_bound < d_two  # the pure bound drops the side above the estimate
+
+
+def test_light_anchor_pulls_the_medium_light_to_the_airlight_in_stage_one_only(scenes, tmp_path, device):
+    """``--pipeline.lambda-light``: off, no anchor term; on, a term that is the squared distance of the
+    scattered light to the view's dark-channel airlight, whose gradient step moves the light towards
+    it; gone after the medium freezes."""
+    off = _trainer(scenes["sky"], tmp_path / "off", device)
+    assert "light_anchor" not in off.pipeline.train_loss(0).metrics
+    on = _trainer(scenes["sky"], tmp_path / "on", device, "--pipeline.lambda-light", "1.0")
+    pipe = on.pipeline
+    with torch.no_grad():
+        pipe.medium.initialize(0.5, torch.full((3,), 0.2))  # far dimmer than any airlight of the views
+    res = pipe.train_loss(0)
+    first = float(res.metrics["light_anchor"])
+    assert first > 0.01
+    on.optimizers.zero_grad()
+    res.loss.backward()
+    on.optimizers.step()
+    assert float(pipe.train_loss(0).metrics["light_anchor"]) < first  # same view, one step later
+    assert "light_anchor" not in pipe.train_loss(pipe.freeze_step).metrics
