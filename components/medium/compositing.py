@@ -105,7 +105,7 @@ class MediumRender:
     scattered_light: Tensor | None = None
     """[3] the mean light the view's rays scatter towards the camera, weighted by each sample's
     (detached) share of the in-scattering, so its gradient reaches the light only and not the
-    extinction; None for media that do not march rays. The light anchor compares it with the dark
+    extinction; None without a medium. The light anchor compares it with the dark
     channel's airlight of the view."""
     at_infinity: bool = False
     """The uncovered share of each pixel sees the medium to infinity (``background infinite``):
