@@ -126,16 +126,20 @@ class MediumRender:
         return clean + (1.0 - self.coverage) * self.sky
 
 
+def _normalised_coords(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
+    """Pixel coordinates xs [w], ys [h] (pixel centres at +0.5) -> x / z [w] and y / z [h]."""
+    fx, fy, cx, cy = (float(v[0]) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
+    return (xs - cx) / fx, (ys - cy) / fy
+
+
 def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
     """Camera-space directions with unit z for pixel coordinates (pixel centres at +0.5).
 
     xs: [w], ys: [h] -> world dirs [h, w, 3] (z-normalised: a point at camera z is o + z * d),
     origin [3].
     """
-    fx, fy, cx, cy = (float(v[0]) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
     c2w = cam.camtoworlds[0].to(xs)  # [4, 4]
-    dx = (xs - cx) / fx  # [w]
-    dy = (ys - cy) / fy  # [h]
+    dx, dy = _normalised_coords(cam, xs, ys)  # [w], [h]
     d_cam = torch.stack(
         [
             dx[None, :].expand(len(ys), -1),
@@ -150,9 +154,9 @@ def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
 def _pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     """[H, W] path length per unit z of each pixel-centre ray, sqrt(1 + x^2 + y^2) in normalised
     image coordinates: the rotation leaves lengths alone, so only the intrinsics matter."""
-    fx, fy, cx, cy = (float(v[0]) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
-    dx = (torch.arange(W, device=device, dtype=dtype) + 0.5 - cx) / fx  # [W]
-    dy = (torch.arange(H, device=device, dtype=dtype) + 0.5 - cy) / fy  # [H]
+    xs = torch.arange(W, device=device, dtype=dtype) + 0.5
+    ys = torch.arange(H, device=device, dtype=dtype) + 0.5
+    dx, dy = _normalised_coords(cam, xs, ys)  # [W], [H]
     return torch.sqrt(1.0 + dx[None, :].square() + dy[:, None].square())
 
 
@@ -338,14 +342,12 @@ def homogeneous_along_rays(
     S = L (1 - T), path = z * |d| for the pixel's ray direction d with unit z.
     """
     H, W = beta.shape
-    xs = torch.arange(W, device=beta.device, dtype=beta.dtype) + 0.5
-    ys = torch.arange(H, device=beta.device, dtype=beta.dtype) + 0.5
-    dirs, _ = _pixel_dirs(camera, xs, ys)  # [H, W, 3]
-    path = end_depth[..., 0] * dirs.norm(dim=-1)  # [H, W]
+    path = end_depth[..., 0] * _pixel_path_lengths(camera, H, W, beta.device, beta.dtype)  # [H, W]
     tau = beta * path
     T = torch.exp(-tau).clamp_min(t_floor)
     share = -torch.expm1(-tau)  # [H, W] scattered fraction
-    scattered = (share.detach()[..., None] * light).sum((0, 1)) / share.detach().sum().clamp_min(1e-6)  # [3]
+    w = share.detach()
+    scattered = (w[..., None] * light).sum((0, 1)) / w.sum().clamp_min(1e-6)  # [3]
     return MediumRender(T[..., None], light * share[..., None], end_depth, scattered_light=scattered)
 
 
