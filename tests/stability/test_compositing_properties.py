@@ -4,7 +4,7 @@ hazy == clean without haze, T non-increasing along a ray, and independence from 
 from __future__ import annotations
 
 import torch
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from components.data.cameras import Cameras
@@ -74,19 +74,30 @@ def test_no_haze_leaves_the_clean_image_unchanged(device, light, stride, seed):
     assert torch.equal(composite(J, med), J)
 
 
+# The march is a midpoint rule whose 16 samples spread over [0, end depth], so moving the surface
+# moves the samples: on a steep blob the quadrature of a farther end can come out a little lower
+# than a nearer one's. The exact integral is monotone; the default march is up to its quadrature
+# error: at most 4.8e-5 of T in 3000 random draws of this test, 2.9e-6 in 2000 draws with 64 samples.
+# A rise that does not shrink with more samples would be a bug, not quadrature.
+QUADRATURE_RTOL = 2e-4
+
+
 @settings(max_examples=25, deadline=None)
 @given(b0=betas, b1=betas, stride=strides, seed=st.integers(0, 10_000))
+@example(b0=0.0, b1=34.0, stride=2, seed=127)  # drew a rise of 1.007e-5 at T ~ 0.5 (2.0e-5 of T)
+@example(b0=0.0, b1=49.09810651997457, stride=1, seed=4685)  # 4.8e-5 of T: the largest rise seen
 def test_transmittance_non_increasing_along_each_ray(device, b0, b1, stride, seed):
     field = BlobField(b0, b1, (0.5, 0.5, 0.5)).to(device)
     z, alpha = _depth(seed, device)
-    comp = MediumCompositor(CompositeConfig(ray_stride=stride, far=20.0))
     ones = torch.ones_like(alpha)
-    prev = None
-    for frac in (0.25, 0.5, 1.0, 1.5):
-        T = comp(field, _camera(device), z * frac, ones).transmittance
-        if prev is not None:
-            assert bool((T <= prev + 1e-5).all())  # float32 rounding only
-        prev = T
+    for samples, rtol in ((16, QUADRATURE_RTOL), (64, QUADRATURE_RTOL / 10)):
+        comp = MediumCompositor(CompositeConfig(ray_stride=stride, far=20.0, num_samples=samples))
+        prev = None
+        for frac in (0.25, 0.5, 1.0, 1.5):
+            T = comp(field, _camera(device), z * frac, ones).transmittance
+            if prev is not None:
+                assert bool((T <= prev * (1 + rtol) + 1e-7).all())
+            prev = T
 
 
 @settings(max_examples=10, deadline=None)
