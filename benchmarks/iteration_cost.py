@@ -5,7 +5,8 @@ so the count stays fixed) and the same rasterizer; an iteration is forward + los
 optimizer step, i.e. exactly what ``td-train`` runs. Variants are interleaved round by round so
 load from other users of a shared machine hits all alike; medians and ratios to vanilla-gs are
 reported. The Tri-DehazeGS variants differ in how many rays the medium is marched along
-(``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation).
+(``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation) and in how each pixel
+reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``).
 
     python benchmarks/iteration_cost.py                       # 320x240, ~50k Gaussians
     python benchmarks/iteration_cost.py --width 160 --height 120 --points 10000
@@ -51,6 +52,7 @@ def variants() -> dict[str, tuple[str, dict]]:
     return {
         "vanilla-gs": ("vanilla-gs", {}),
         "tri-dehaze (default: ~1200 rays)": ("tri-dehaze", {}),
+        "tri-dehaze (torch read-out)": ("tri-dehaze", {"fused": False}),
         "tri-dehaze (stride 4)": ("tri-dehaze", {"stride": 4}),
         "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
         "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
@@ -65,7 +67,11 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
         densify=replace(p.densify, enabled=False),
         rasterizer=replace(p.rasterizer, backend=backend),
         model=replace(p.model, max_init_points=points),
-        composite=replace(p.composite, ray_stride=over.get("stride", p.composite.ray_stride)),
+        composite=replace(
+            p.composite,
+            ray_stride=over.get("stride", p.composite.ray_stride),
+            fused_readout=over.get("fused", p.composite.fused_readout),
+        ),
     )
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)

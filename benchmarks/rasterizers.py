@@ -34,6 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from components.native import build as native_build  # noqa: E402
 from components.rasterizers import CpuRasterizer, RasterizerConfig, cpu_build  # noqa: E402
 from components.rasterizers.bench import make_scene  # noqa: E402
 from tridehaze_plugin.registry import REGISTRY  # noqa: E402
@@ -218,12 +219,12 @@ SWEEP: dict[str, dict[str, str]] = {
     "torch 2, kernel 2, std::thread build": {
         "torch": "2",
         "kernel": "2",
-        cpu_build.PARALLEL_ENV_VAR: "threads",
+        native_build.PARALLEL_ENV_VAR: "threads",
     },
     "torch 1, kernel 2, std::thread build": {
         "torch": "1",
         "kernel": "2",
-        cpu_build.PARALLEL_ENV_VAR: "threads",
+        native_build.PARALLEL_ENV_VAR: "threads",
     },
 }
 SWEEP_CASES = ((10000, 160, 120), (50000, 320, 240))

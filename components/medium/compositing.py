@@ -35,6 +35,7 @@ from torch.nn import functional as F
 
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
+from components.medium.pixel_readout import ReadoutGrid, read_pixels
 from tridehaze_plugin.config import Positive, Range, check_numbers
 
 OPEN_SKY_COVERAGE = 0.5
@@ -66,6 +67,11 @@ class CompositeConfig:
     depth to the far bound. Detached, a less covered pixel marches further into the haze without
     the gradient knowing it: lowering a surface's opacity seems only to dim it, and surfaces drift
     half transparent (docs/results/coverage_diagnosis.md)."""
+    fused_readout: bool = True
+    """Read each pixel's T and S from the coarse rays with the compiled kernel on CPU (one pass per
+    pixel, forward and backward) where a C++ compiler is available; the torch ops otherwise, and
+    always on GPU or with ``depth_gradient``. The same values to float32 rounding
+    (tests/medium/test_pixel_readout.py); off: always the torch ops."""
     t_floor: Annotated[float, Range(0.0, 0.5, lo_open=True)] = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""
     background: Literal["far", "infinite"] = "far"
@@ -258,32 +264,11 @@ class MediumCompositor:
         # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
         # rescaled to the pixel's own path length (exact for a homogeneous medium)
         rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
-        pix_len = _pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(1, -1)  # [1, H*W]
-        ray_len = step_len.reshape(-1)[rays]  # [4, H*W]
-        zfar_r = zfar.reshape(-1)[rays]  # [4, H*W]
-        r = pix_len / ray_len  # ~1: obliquity of the pixel vs the coarse ray
+        pix_len = _pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
+        grid = ReadoutGrid(table, rays, wgt, pix_len, step_len.reshape(-1), zfar.reshape(-1), K)
 
-        def read(zq: Tensor, last_light: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
-            """Optical depth [H*W], scattering [H*W, 3] and (``last_light``) the light of the last
-            interval read [H*W, 3] to z ``zq`` [1, H*W]."""
-            pos = (zq / zfar_r.clamp_min(1e-12)).clamp(0, 1) * K  # [4, H*W] position in intervals
-            k = pos.detach().floor().clamp(max=K - 1).long()
-            f = pos - k.to(pos)  # fraction of interval k covered
-            row = table.index_select(0, (rays * (K + 1) + k).reshape(-1)).reshape(4, H * W, 9)
-            # one split, not five slices: each slice's backward zero-fills a full [4, H*W, 9]
-            # gradient (5 per read, 15-30 % of a CPU step at 320x240); split's backward is one cat
-            Tau_k, tau_k, T_k, S_k, L_k = row.split((1, 1, 1, 3, 3), dim=-1)
-            Tau_k, tau_k, T_k = Tau_k[..., 0], tau_k[..., 0], T_k[..., 0]  # [4, H*W] each
-            t_ray = Tau_k + f * tau_k  # [4, H*W] optical depth along the coarse ray to z
-            s_ray = S_k + (T_k * -torch.expm1(-f * tau_k))[..., None] * L_k  # [4, H*W, 3]
-            t_pix = t_ray * r
-            # S is a light-weighted scattered fraction 1 - T: keep the weighting, rescale the fraction
-            den = -torch.expm1(-t_ray)
-            frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
-            light = (wgt[..., None] * L_k).sum(0) if last_light else None  # [H*W, 3]
-            return (wgt * t_pix).sum(0), ((wgt * frac)[..., None] * s_ray).sum(0), light
-
-        tau_p, S_p, _ = read(z.reshape(1, -1))  # [H*W], [H*W, 3]
+        fused = self.config.fused_readout
+        tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
         share = (Tb[:, :-1] * -torch.expm1(-tau)).detach()  # [R, K] each sample's share of S
         scattered = (share[..., None] * light).sum((0, 1)) / share.sum().clamp_min(1e-6)  # [3]
@@ -292,7 +277,8 @@ class MediumCompositor:
             return surface
         # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
-        tau_f, S_f, L_last = read(torch.full_like(z, far).reshape(1, -1), last_light=True)
+        z_far = torch.full_like(z, far).reshape(1, -1)
+        tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
         return self.with_sky(surface, alpha, sky)
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from components.native import build as native_build
 from components.rasterizers import (
     CpuRasterizer,
     RasterizerConfig,
@@ -43,10 +44,10 @@ def _scene():
 @pytest.fixture
 def fresh_kernel_state(monkeypatch):
     """Forget loaded kernels and warnings before and after, so settings made here do not leak."""
-    cpu_build.forget()
+    native_build.forget()
     monkeypatch.setattr(cpu_rasterizer, "_warned", set())
     yield monkeypatch
-    cpu_build.forget()
+    native_build.forget()
 
 
 def test_missing_compiler_falls_back_to_torch_with_one_line(fresh_kernel_state, capsys) -> None:
@@ -73,40 +74,42 @@ def test_failing_compiler_makes_the_backend_unavailable(fresh_kernel_state, tmp_
     )
     fake.chmod(0o755)
     fresh_kernel_state.setenv("CXX", str(fake))
-    fresh_kernel_state.setenv(cpu_build.CACHE_ENV_VAR, str(tmp_path / "cache"))
+    fresh_kernel_state.setenv(native_build.CACHE_ENV_VAR, str(tmp_path / "cache"))
     with pytest.raises(cpu_build.KernelUnavailable, match="compiling cpu_raster.cpp failed: boom"):
         cpu_build.load_kernel()
     assert not CpuRasterizer.available()
     # each variant's failure is remembered on disk, so other processes do not retry it
-    assert len(list((tmp_path / "cache" / "kernels").glob("*.failed"))) == len(cpu_build.VARIANTS)
+    assert len(list((tmp_path / "cache" / "kernels").glob("*.failed"))) == len(native_build.VARIANTS)
     assert not list((tmp_path / "cache" / "kernels").glob("*.tmp"))
 
 
 @needs_compiler
 def test_compiled_library_is_cached_and_reused(fresh_kernel_state, tmp_path) -> None:
-    fresh_kernel_state.setenv(cpu_build.CACHE_ENV_VAR, str(tmp_path))
-    builds = cpu_build.BUILD_COUNT
+    fresh_kernel_state.setenv(native_build.CACHE_ENV_VAR, str(tmp_path))
+    builds = native_build.BUILD_COUNT
     lib = cpu_build.load_kernel()
-    assert cpu_build.BUILD_COUNT == builds + 1
+    assert native_build.BUILD_COUNT == builds + 1
     (so,) = (tmp_path / "kernels").glob("cpu_raster-*.so")
     assert lib.tdh_variant in so.name and not list((tmp_path / "kernels").glob("*.tmp"))
     mtime = so.stat().st_mtime_ns
-    cpu_build.forget()  # as a new process would: look up the cache again
+    native_build.forget()  # as a new process would: look up the cache again
     cpu_build.load_kernel()
-    assert cpu_build.BUILD_COUNT == builds + 1 and so.stat().st_mtime_ns == mtime
+    assert native_build.BUILD_COUNT == builds + 1 and so.stat().st_mtime_ns == mtime
 
 
 @needs_compiler
 def test_concurrent_first_builds_are_safe(tmp_path) -> None:
     """Two processes building into an empty cache both load a complete library (atomic rename)."""
-    path = Path(cpu_build.__file__)
+    path = Path(native_build.__file__)
     code = (
         "import importlib.util, sys\n"
-        f"spec = importlib.util.spec_from_file_location('cpu_build', {str(path)!r})\n"
-        "mod = sys.modules['cpu_build'] = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)\n"
-        "lib = mod.load_kernel(); print(lib.tdh_abi_version(), lib.tdh_variant)\n"
-    )  # cpu_build alone: no torch import, so the two builds really overlap
-    env = dict(os.environ, **{cpu_build.CACHE_ENV_VAR: str(tmp_path)})
+        f"spec = importlib.util.spec_from_file_location('native_build', {str(path)!r})\n"
+        "mod = sys.modules['native_build'] = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)\n"
+        f"spec = mod.NativeLibrary('cpu_raster', mod.Path({str(cpu_build.SOURCE)!r}), 'tdh_abi_version', "
+        f"{cpu_build.ABI_VERSION})\n"
+        "lib = spec.load(); print(lib.tdh_abi_version(), lib.tdh_variant)\n"
+    )  # the builder alone: no torch import, so the two builds really overlap
+    env = dict(os.environ, **{native_build.CACHE_ENV_VAR: str(tmp_path)})
     procs = [
         subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, text=True)
         for _ in range(2)
@@ -125,8 +128,8 @@ def test_loading_does_not_flush_denormals() -> None:
     assert (tiny * 1.0).item() > 0.0
 
 
-def test_cpu_build_does_not_import_torch() -> None:
-    spec = importlib.util.find_spec("components.rasterizers.cpu_build")
+def test_native_build_does_not_import_torch() -> None:
+    spec = importlib.util.find_spec("components.native.build")
     assert spec is not None and "import torch" not in Path(spec.origin).read_text()
 
 

@@ -1,0 +1,223 @@
+// The medium's per-pixel read-out (components/medium/pixel_readout.py), forward and backward.
+//
+// The compositor marches R coarse rays of K intervals and keeps, per interval boundary k, one
+// table row of 9 values: Tau_k (optical depth to k), tau_k (of interval k), T_k, S_k (3), L_k (3).
+// Each pixel reads its four nearest coarse rays at its own depth zq, rescales the optical depth by
+// its own path length (ratio pix_len / ray_len) and blends the four with bilinear weights. In
+// PyTorch that is some thirty elementwise ops on [4, H*W] tensors and as many in the backward;
+// here it is one pass per pixel. The expressions are those of the torch path
+// (MediumCompositor.read), which stays the reference (tests/medium/test_pixel_readout.py).
+//
+// Plain C ABI, loaded with ctypes. Layouts (row-major): table [R*(K+1), 9]; rays [4, P] int32 ray
+// index of each neighbour (int32); wgt [4, P]; pix_len [P]; ray_len [R]; zfar [R] (z each ray was marched
+// to); zq [P]; out_tau [P]; out_S [P, 3]; out_L [P, 3] or null (light of the last interval read);
+// g_* the gradients of the outputs; grad_table [R*(K+1), 9] is overwritten.
+// Every entry point takes the number of threads. The backward scatters into per-thread tables
+// summed in thread order, so its result does not depend on scheduling.
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <thread>
+#include <vector>
+
+namespace {
+
+constexpr int ROW = 9;
+
+template <class F>
+void parallel_chunks(int64_t n, int nthreads, F&& f) {
+    nthreads = std::max(1, static_cast<int>(std::min<int64_t>(nthreads, (n + 4095) / 4096)));
+    if (nthreads == 1) {
+        f(int64_t(0), n, 0);
+        return;
+    }
+    std::vector<std::thread> pool;
+    const int64_t chunk = (n + nthreads - 1) / nthreads;
+    for (int t = 0; t < nthreads; ++t) {
+        const int64_t a = std::min(n, t * chunk), b = std::min(n, a + chunk);
+        pool.emplace_back([&f, a, b, t] { f(a, b, t); });
+    }
+    for (auto& th : pool) th.join();
+}
+
+// e^-x for x >= 0 and 1 - e^-x, the read-out's only transcendental functions. float: inline and
+// branch-free, so the pixel loops vectorise (libm's expm1f call was most of the kernel's time):
+// e^-x = 2^n p(r), |r| <= ln2 / 2, a degree-6 minimax polynomial (about 2 ulp), and
+// 1 - e^-x from its Taylor series below x = 1/16, where the difference would cancel (relative
+// error about 1e-7 either way). double: the library functions (the tests' reference precision).
+inline float exp_neg(float x) {
+    const float y = -std::min(x, 87.0f);
+    const float n = std::nearbyint(y * 1.44269504088896341f);
+    const float r = (y - n * 0.693359375f) + n * 2.12194440e-4f;
+    float q = 1.9875691500e-4f;
+    q = q * r + 1.3981999507e-3f;
+    q = q * r + 8.3334519073e-3f;
+    q = q * r + 4.1665795894e-2f;
+    q = q * r + 1.6666665459e-1f;
+    q = q * r + 5.0000001201e-1f;
+    q = q * r * r + r + 1.0f;
+    int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
+    float scale;
+    std::memcpy(&scale, &bits, sizeof scale);
+    return q * scale;
+}
+inline float one_minus_exp_neg(float x) {
+    const float series = x * (1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f)))));
+    return x < 0.0625f ? series : 1.0f - exp_neg(x);
+}
+inline double exp_neg(double x) { return std::exp(-x); }
+inline double one_minus_exp_neg(double x) { return -std::expm1(-x); }
+
+// One neighbour's read at zq: the row it lands in and the interval fraction covered.
+template <class T>
+struct Read {
+    const T* row;
+    T f, r;
+};
+
+template <class T>
+inline Read<T> locate(const T* table, int32_t ray, int K, T z, T zf, T pl, T rl) {
+    T pos = z / std::max(zf, T(1e-12));
+    pos = std::min(std::max(pos, T(0)), T(1)) * T(K);
+    const int k = std::min(static_cast<int>(std::floor(pos)), K - 1);
+    return {table + (ray * (K + 1) + k) * ROW, pos - T(k), pl / rl};  // int32: < 2^31 entries (checked)
+}
+
+template <class T>
+void forward(int64_t P, int K, int threads, const T* table, const int32_t* rays, const T* wgt,
+             const T* pix_len, const T* ray_len, const T* zfar, const T* zq, T* out_tau, T* out_S,
+             T* out_L) {
+    parallel_chunks(P, threads, [&](int64_t a, int64_t b, int) {
+#pragma omp simd
+        for (int64_t p = a; p < b; ++p) {
+            T acc_t = 0, acc_s[3] = {0, 0, 0}, acc_l[3] = {0, 0, 0};
+#pragma GCC unroll 4
+            for (int j = 0; j < 4; ++j) {
+                const int32_t ray = rays[j * P + p];
+                const T w = wgt[j * P + p];
+                const Read<T> rd = locate(table, ray, K, zq[p], zfar[ray], pix_len[p], ray_len[ray]);
+                const T* row = rd.row;
+                const T tau = row[1], e = one_minus_exp_neg(rd.f * tau);
+                const T t_ray = row[0] + rd.f * tau, t_pix = t_ray * rd.r;
+                const T den = one_minus_exp_neg(t_ray);
+                const T frac = den > T(1e-7) ? one_minus_exp_neg(t_pix) / std::max(den, T(1e-7)) : rd.r;
+                acc_t += w * t_pix;
+                for (int c = 0; c < 3; ++c) {
+                    acc_s[c] += w * frac * (row[3 + c] + row[2] * e * row[6 + c]);
+                    acc_l[c] += w * row[6 + c];
+                }
+            }
+            out_tau[p] = acc_t;
+            for (int c = 0; c < 3; ++c) {
+                out_S[p * 3 + c] = acc_s[c];
+                if (out_L) out_L[p * 3 + c] = acc_l[c];
+            }
+        }
+    });
+}
+
+template <class T>
+void backward(int64_t P, int K, int64_t R, int threads, const T* table, const int32_t* rays,
+              const T* wgt, const T* pix_len, const T* ray_len, const T* zfar, const T* zq,
+              const T* g_tau, const T* g_S, const T* g_L, T* grad_table) {
+    const int64_t n_tab = R * (K + 1) * ROW;
+    const int nt = std::max(1, static_cast<int>(std::min<int64_t>(threads, (P + 4095) / 4096)));
+    std::vector<std::vector<T>> local(nt > 1 ? nt : 0, std::vector<T>());
+    std::memset(grad_table, 0, sizeof(T) * n_tab);
+    parallel_chunks(P, nt, [&](int64_t a, int64_t b, int t) {
+        T* g;
+        if (nt > 1) {
+            local[t].assign(n_tab, T(0));
+            g = local[t].data();
+        } else {
+            g = grad_table;
+        }
+        for (int64_t p = a; p < b; ++p) {
+            const T gt = g_tau[p];
+            const T gs[3] = {g_S[p * 3], g_S[p * 3 + 1], g_S[p * 3 + 2]};
+            for (int j = 0; j < 4; ++j) {
+                const int32_t ray = rays[j * P + p];
+                const T w = wgt[j * P + p];
+                const Read<T> rd = locate(table, ray, K, zq[p], zfar[ray], pix_len[p], ray_len[ray]);
+                const T* row = rd.row;
+                T* grow = g + (rd.row - table);
+                const T f = rd.f, tau = row[1], Tk = row[2];
+                const T ef = exp_neg(f * tau), e = one_minus_exp_neg(f * tau);
+                const T t_ray = row[0] + f * tau, t_pix = t_ray * rd.r;
+                const T den = one_minus_exp_neg(t_ray);
+                const bool live = den > T(1e-7);
+                const T A = one_minus_exp_neg(t_pix);
+                const T frac = live ? A / std::max(den, T(1e-7)) : rd.r;
+                T s_ray[3], g_frac = 0;
+                for (int c = 0; c < 3; ++c) {
+                    s_ray[c] = row[3 + c] + Tk * e * row[6 + c];
+                    g_frac += gs[c] * s_ray[c];
+                }
+                g_frac *= w;
+                T g_tpix = w * gt, g_tray = 0;
+                if (live) {
+                    g_tpix += g_frac * (T(1) - A) / den;
+                    g_tray -= g_frac * A * (T(1) - den) / (den * den);
+                }
+                g_tray += g_tpix * rd.r;
+                grow[0] += g_tray;
+                T sum_lg = 0;
+                for (int c = 0; c < 3; ++c) {
+                    const T g_s = w * frac * gs[c];
+                    grow[3 + c] += g_s;
+                    sum_lg += g_s * row[6 + c];
+                    grow[6 + c] += g_s * Tk * e + (g_L ? w * g_L[p * 3 + c] : T(0));
+                }
+                grow[1] += g_tray * f + Tk * sum_lg * f * ef;
+                grow[2] += sum_lg * e;
+            }
+        }
+    });
+    for (int t = 0; t < static_cast<int>(local.size()); ++t) {  // fixed order: reproducible sums
+        const T* src = local[t].data();
+        if (local[t].empty()) continue;
+        for (int64_t i = 0; i < n_tab; ++i) grad_table[i] += src[i];
+    }
+}
+
+}  // namespace
+
+extern "C" {
+
+int tdh_readout_abi_version() { return 1; }
+
+void tdh_readout_forward_f32(int64_t P, int K, int threads, const float* table, const int32_t* rays,
+                             const float* wgt, const float* pix_len, const float* ray_len,
+                             const float* zfar, const float* zq, float* out_tau, float* out_S,
+                             float* out_L) {
+    forward<float>(P, K, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, out_tau, out_S, out_L);
+}
+
+void tdh_readout_forward_f64(int64_t P, int K, int threads, const double* table,
+                             const int32_t* rays, const double* wgt, const double* pix_len,
+                             const double* ray_len, const double* zfar, const double* zq,
+                             double* out_tau, double* out_S, double* out_L) {
+    forward<double>(P, K, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, out_tau, out_S, out_L);
+}
+
+void tdh_readout_backward_f32(int64_t P, int K, int64_t R, int threads, const float* table,
+                              const int32_t* rays, const float* wgt, const float* pix_len,
+                              const float* ray_len, const float* zfar, const float* zq,
+                              const float* g_tau, const float* g_S, const float* g_L,
+                              float* grad_table) {
+    backward<float>(P, K, R, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, g_tau, g_S, g_L,
+                    grad_table);
+}
+
+void tdh_readout_backward_f64(int64_t P, int K, int64_t R, int threads, const double* table,
+                              const int32_t* rays, const double* wgt, const double* pix_len,
+                              const double* ray_len, const double* zfar, const double* zq,
+                              const double* g_tau, const double* g_S, const double* g_L,
+                              double* grad_table) {
+    backward<double>(P, K, R, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, g_tau, g_S,
+                     g_L, grad_table);
+}
+
+}  // extern "C"
