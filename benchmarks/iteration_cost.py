@@ -197,7 +197,10 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--steps", type=int, default=6, help="timed iterations per variant per round")
     ap.add_argument(
-        "--step-offset", type=int, default=1000, help="steps are timed from here (Stage II, SH on)"
+        "--step-offset",
+        type=int,
+        default=1000,
+        help="steps are timed from here (Stage I of a 10000-step run: the medium is trained; SH degree 1)",
     )
     ap.add_argument("--backend", default="auto")
     ap.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
