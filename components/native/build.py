@@ -21,6 +21,7 @@ import ctypes
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -114,6 +115,24 @@ def _compiler_version(cxx: str) -> str:
     return res.stdout
 
 
+def local_includes(source: Path) -> list[Path]:
+    """``source`` and every file it pulls in with ``#include "..."``, recursively: all of them go
+    into the cache key, so an edited shared header rebuilds the kernels that use it."""
+    seen: list[Path] = []
+    todo = [source.resolve()]
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.append(f)
+        for name in _INCLUDE.findall(f.read_text(encoding="utf-8")):
+            todo.append((f.parent / name).resolve())
+    return seen
+
+
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.MULTILINE)
+
+
 def _commands(cxx: str, variant: Variant, source: Path, obj: Path, lib: Path) -> list[list[str]]:
     return [
         [cxx, *COMPILE_FLAGS, *variant.compile_flags, "-c", str(source), "-o", str(obj)],
@@ -141,7 +160,7 @@ class NativeLibrary:
         """Where the build for this source, variant, flags, compiler and machine is cached."""
         h = hashlib.sha256()
         for part in (
-            self.source.read_bytes(),
+            *(f.read_bytes() for f in local_includes(self.source)),
             repr(_commands("", variant, Path(), Path(), Path())).encode(),
             cxx.encode(),
             _compiler_version(cxx).encode(),

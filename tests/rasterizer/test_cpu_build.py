@@ -138,3 +138,19 @@ def test_auto_prefers_cpu_without_cuda() -> None:
     if not torch.cuda.is_available():
         assert resolve_backend("auto") == "cpu"
     assert isinstance(RasterizerConfig(backend="cpu").setup(), CpuRasterizer)
+
+
+@needs_compiler
+def test_an_edited_shared_header_changes_the_cache_key(tmp_path) -> None:
+    """Kernels include shared headers (components/native/csrc); editing one must rebuild them."""
+    (tmp_path / "inc").mkdir()
+    header = tmp_path / "inc" / "shared.h"
+    header.write_text("inline int one() { return 1; }\n")
+    source = tmp_path / "k.cpp"
+    source.write_text('#include "inc/shared.h"\nextern "C" int abi() { return one(); }\n')
+    assert native_build.local_includes(source) == [source.resolve(), header.resolve()]
+    lib = native_build.NativeLibrary("k", source, "abi", 1)
+    cxx, variant = native_build.find_compiler(), native_build.VARIANTS[-1]
+    before = lib.library_path(cxx, variant)
+    header.write_text("inline int one() { return 2; }\n")
+    assert lib.library_path(cxx, variant) != before

@@ -22,6 +22,8 @@
 #include <thread>
 #include <vector>
 
+#include "../../native/csrc/fast_exp.h"
+
 namespace {
 
 constexpr int ROW = 9;
@@ -42,27 +44,11 @@ void parallel_chunks(int64_t n, int nthreads, F&& f) {
     for (auto& th : pool) th.join();
 }
 
-// e^-x for x >= 0 and 1 - e^-x, the read-out's only transcendental functions. float: inline and
-// branch-free, so the pixel loops vectorise (libm's expm1f call was most of the kernel's time):
-// e^-x = 2^n p(r), |r| <= ln2 / 2, a degree-6 minimax polynomial (about 2 ulp), and
-// 1 - e^-x from its Taylor series below x = 1/16, where the difference would cancel (relative
-// error about 1e-7 either way). double: the library functions (the tests' reference precision).
-inline float exp_neg(float x) {
-    const float y = -std::min(x, 87.0f);
-    const float n = std::nearbyint(y * 1.44269504088896341f);
-    const float r = (y - n * 0.693359375f) + n * 2.12194440e-4f;
-    float q = 1.9875691500e-4f;
-    q = q * r + 1.3981999507e-3f;
-    q = q * r + 8.3334519073e-3f;
-    q = q * r + 4.1665795894e-2f;
-    q = q * r + 1.6666665459e-1f;
-    q = q * r + 5.0000001201e-1f;
-    q = q * r * r + r + 1.0f;
-    int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
-    float scale;
-    std::memcpy(&scale, &bits, sizeof scale);
-    return q * scale;
-}
+// e^-x for x >= 0 and 1 - e^-x, the read-out's only transcendental functions. float: the shared
+// inline polynomial (libm's expm1f calls were most of the kernel's time) and 1 - e^-x from its
+// Taylor series below x = 1/16, where the difference would cancel (relative error about 1e-7
+// either way). double: the library functions (the tests' reference precision).
+inline float exp_neg(float x) { return tdh::exp_nonpositive(-x); }
 inline float one_minus_exp_neg(float x) {
     const float series = x * (1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f)))));
     return x < 0.0625f ? series : 1.0f - exp_neg(x);

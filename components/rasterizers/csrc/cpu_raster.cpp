@@ -39,6 +39,8 @@
 #include <omp.h>
 #endif
 
+#include "../../native/csrc/fast_exp.h"
+
 namespace {
 
 constexpr int LANES = 16;  // pixels per vector step (one row of a 16-px tile)
@@ -109,26 +111,8 @@ void parallel_for(int n, int nthreads, F&& f, bool fixed = false) {
 #ifdef TDH_LIBM_EXP
 inline float vexp(float x) { return std::exp(x); }
 #else
-// exp for x <= 0, branch-free so it vectorises without libmvec (measured faster, too):
-// 2^n * p(r), |r| <= ln2/2, degree-6 polynomial (Cephes expf coefficients), about 1-2 ulp;
-// clamped at -87 so the result stays a normal float (alpha is then far below 1/255 anyway).
-inline float vexp(float x) {
-    x = std::max(x, -87.0f);
-    const float n = std::floor(x * 1.44269504088896341f + 0.5f);
-    float r = x - n * 0.693359375f;
-    r = r - n * -2.12194440e-4f;
-    float p = 1.9875691500e-4f;
-    p = p * r + 1.3981999507e-3f;
-    p = p * r + 8.3334519073e-3f;
-    p = p * r + 4.1665795894e-2f;
-    p = p * r + 1.6666665459e-1f;
-    p = p * r + 5.0000001201e-1f;
-    p = p * r * r + r + 1.0f;
-    const int32_t bits = (static_cast<int32_t>(n) + 127) << 23;
-    float scale;
-    std::memcpy(&scale, &bits, sizeof scale);
-    return p * scale;
-}
+// exp for x <= 0: the shared inline polynomial (components/native/csrc/fast_exp.h).
+inline float vexp(float x) { return tdh::exp_nonpositive(x); }
 #endif
 
 // Half extents (ex, ey) of the ellipse where alpha can reach 1/255 (sigma <= log(255 o)):
