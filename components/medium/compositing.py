@@ -166,6 +166,13 @@ def _pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtyp
     return torch.sqrt(1.0 + dx[None, :].square() + dy[:, None].square())
 
 
+def _scattered_light(share: Tensor, light: Tensor) -> Tensor:
+    """[3] the mean of ``light`` [..., 3] weighted by each sample's scattered fraction ``share``
+    [...], detached so that the gradient reaches the light only (``MediumRender.scattered_light``)."""
+    w = share.detach()
+    return (w[..., None] * light).flatten(0, -2).sum(0) / w.sum().clamp_min(1e-6)
+
+
 @functools.lru_cache(maxsize=8)
 def _bilinear_neighbours(
     H: int, W: int, h: int, w: int, s: int, device: torch.device, dtype: torch.dtype
@@ -252,7 +259,8 @@ class MediumCompositor:
         tau = beta * (dz * step_len.reshape(-1))[:, None]  # [R, K] optical depth per interval
         Tau = torch.cat([tau.new_zeros(h * w, 1), torch.cumsum(tau, dim=1)], dim=1)  # [R, K+1]
         Tb = torch.exp(-Tau)  # [R, K+1] transmittance at interval boundaries
-        dS = (Tb[:, :-1] * -torch.expm1(-tau))[..., None] * light  # [R, K, 3]
+        share = Tb[:, :-1] * -torch.expm1(-tau)  # [R, K] each sample's scattered fraction of S
+        dS = share[..., None] * light  # [R, K, 3]
         Scum = torch.cat([dS.new_zeros(h * w, 1, 3), torch.cumsum(dS, dim=1)], dim=1)  # [R, K+1, 3]
         # one table per boundary k: Tau_k, tau_k, T_k, S_k (3), L_k (3) -> a single gather per pixel
         pad = tau.new_zeros(h * w, 1)
@@ -270,8 +278,7 @@ class MediumCompositor:
         fused = self.config.fused_readout
         tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        share = (Tb[:, :-1] * -torch.expm1(-tau)).detach()  # [R, K] each sample's share of S
-        scattered = (share[..., None] * light).sum((0, 1)) / share.sum().clamp_min(1e-6)  # [3]
+        scattered = _scattered_light(share, light)  # [3]
         surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=scattered)
         if not (infinite or sky_shown):
             return surface
@@ -332,8 +339,7 @@ def homogeneous_along_rays(
     tau = beta * path
     T = torch.exp(-tau).clamp_min(t_floor)
     share = -torch.expm1(-tau)  # [H, W] scattered fraction
-    w = share.detach()
-    scattered = (w[..., None] * light).sum((0, 1)) / w.sum().clamp_min(1e-6)  # [3]
+    scattered = _scattered_light(share, light)  # [3]
     return MediumRender(T[..., None], light * share[..., None], end_depth, scattered_light=scattered)
 
 

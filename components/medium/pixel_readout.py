@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from components.native.build import KernelUnavailable, NativeLibrary
+from components.native.pointers import tensor_ptr as _ptr
 
 ROW = 9
 """Table columns per boundary: Tau, tau, T, S (3), L (3)."""
@@ -89,10 +90,6 @@ def read_torch(
     frac = torch.where(den > 1e-7, -torch.expm1(-t_pix) / den.clamp_min(1e-7), r)
     light = (wgt[..., None] * L_k).sum(0) if last_light else None  # [P, 3]
     return (wgt * t_pix).sum(0), ((wgt * frac)[..., None] * s_ray).sum(0), light
-
-
-def _ptr(t: Tensor | None) -> ctypes.c_void_p | None:
-    return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
 class _ReadoutFn(torch.autograd.Function):

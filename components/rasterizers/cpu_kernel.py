@@ -16,15 +16,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from components.native.pointers import tensor_ptr as _ptr
+
 GRAD_GEOM = 6
 """Per-Gaussian gradient slots before the payload: mean x, mean y, conic a, b, c, opacity."""
 FIXED_SCHEDULE = True
 """Backward hands tiles to threads round-robin (thread t: tiles t, t + T, ...) instead of first come,
 first served, so each thread's gradient sums, and their total, are the same on every call."""
-
-
-def _ptr(t: Tensor) -> ctypes.c_void_p:
-    return ctypes.c_void_p(t.data_ptr() if t.numel() else 0)
 
 
 @dataclass
@@ -115,7 +113,7 @@ def composite_forward(
     counts = torch.empty(C, height, width, dtype=torch.int32) if count else None
     lib.tdh_forward(
         threads, C, N, height, width, bins.tile_size, nc, _ptr(packed), _ptr(bins.offsets), _ptr(bins.gids),
-        _ptr(acc), _ptr(trans), _ptr(last), _ptr(counts) if counts is not None else None,
+        _ptr(acc), _ptr(trans), _ptr(last), _ptr(counts),
     )  # fmt: skip
     return packed, acc, trans, last, counts
 

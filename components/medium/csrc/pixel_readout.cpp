@@ -36,9 +36,14 @@ constexpr int ROW = 9;
 // backward's per-thread sums are the same on every call). TDH_OPENMP: torch's own OpenMP pool,
 // whose workers are awake after the torch ops around the call; std::threads would compete with
 // them spinning (measured: two std::threads were no faster than one).
+// Threads actually used for n pixels: at most one per 4096, so small images stay on one.
+inline int chunk_threads(int64_t n, int threads) {
+    return std::max(1, static_cast<int>(std::min<int64_t>(threads, (n + 4095) / 4096)));
+}
+
 template <class F>
 void parallel_chunks(int64_t n, int nthreads, F&& f) {
-    nthreads = std::max(1, static_cast<int>(std::min<int64_t>(nthreads, (n + 4095) / 4096)));
+    nthreads = chunk_threads(n, nthreads);
     if (nthreads == 1) {
         f(int64_t(0), n, 0);
         return;
@@ -124,8 +129,8 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
               const T* wgt, const T* pix_len, const T* ray_len, const T* zfar, const T* zq,
               const T* g_tau, const T* g_S, const T* g_L, T* grad_table) {
     const int64_t n_tab = R * (K + 1) * ROW;
-    const int nt = std::max(1, static_cast<int>(std::min<int64_t>(threads, (P + 4095) / 4096)));
-    std::vector<std::vector<T>> local(nt > 1 ? nt : 0, std::vector<T>());
+    const int nt = chunk_threads(P, threads);  // the split parallel_chunks will make
+    std::vector<std::vector<T>> local(nt > 1 ? nt : 0);
     std::memset(grad_table, 0, sizeof(T) * n_tab);
     parallel_chunks(P, nt, [&](int64_t a, int64_t b, int t) {
         T* g;
@@ -176,10 +181,8 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
             }
         }
     });
-    for (int t = 0; t < static_cast<int>(local.size()); ++t) {  // fixed order: reproducible sums
-        const T* src = local[t].data();
-        if (local[t].empty()) continue;
-        for (int64_t i = 0; i < n_tab; ++i) grad_table[i] += src[i];
+    for (const std::vector<T>& part : local) {  // in thread order: reproducible sums
+        for (int64_t i = 0; i < static_cast<int64_t>(part.size()); ++i) grad_table[i] += part[i];
     }
 }
 
