@@ -81,11 +81,21 @@ class _KillWorkerOnSecondNode(threading.Thread):
                     continue
                 args = [a.decode() for a in cmd]
                 time.sleep(1.0)  # mid-run: past start-up, before the end
+                if not _alive(pid):  # it ended meanwhile (a slow, busy machine): wait for the next run
+                    continue
                 os.kill(ppid, signal.SIGKILL)
                 self.killed = {"variant": args[args.index("--timestamp") + 1],
                                "scene": Path(args[args.index("--data") + 1]).name, "worker": parent.split(b"\0")[0].decode()}  # fmt: skip
                 return
             time.sleep(0.05)
+
+
+def _alive(pid: int) -> bool:
+    """The process exists and is not a zombie (it has not finished its run)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
 
 
 def _ablate(out: Path, scenes: list[Path], env: dict[str, str], *extra: str) -> subprocess.CompletedProcess:
