@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 
@@ -103,11 +104,17 @@ def test_overrides_reach_nested_configs():
 
 
 def test_paper_preset_is_the_papers_schedule():
-    """method.md: 15k steps, the medium frozen (Stage II) at 3000; otherwise tri-dehaze's settings."""
+    """method.md: 15k steps, the medium frozen (Stage II) at 3000, the dark channel as a two-sided
+    target on a black background; tri-dehaze departs from it in exactly the three measured settings."""
     paper, default = parse_args(["tri-dehaze-paper"]), parse_args(["tri-dehaze"])
     assert paper.max_steps == 15_000 and default.max_steps == 3000
     assert scaled_step(paper.pipeline.freeze_step, paper.pipeline.freeze_fraction, paper.max_steps) == 3000
-    assert paper.pipeline == default.pipeline  # only the length differs
+    assert (paper.pipeline.random_background, paper.pipeline.dcp_bound) == (False, "two-sided")
+    measured = {"random_background": True, "dcp_bound": "lower-own-light", "freeze_fraction": 0.5}
+    assert replace(paper.pipeline, **measured) == default.pipeline
+    assert (
+        scaled_step(default.pipeline.freeze_step, default.pipeline.freeze_fraction, default.max_steps) == 1500
+    )
     short = parse_args(["tri-dehaze-paper", "--max-steps", "5000"])  # the freeze keeps its share
     assert scaled_step(short.pipeline.freeze_step, short.pipeline.freeze_fraction, short.max_steps) == 1000
 

@@ -172,8 +172,8 @@ def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
     cfg = parse_args(["tri-dehaze", "--data", str(hazy_scene), "--max-steps", "15000"])
     from pipelines.tridehaze.priors import scaled_step
 
-    assert scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, 15000) == 3000
-    assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 200
+    assert scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, 15000) == 7500
+    assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 500
     cfg2 = replace(cfg.pipeline, freeze_step=123)
     assert scaled_step(cfg2.freeze_step, cfg2.freeze_fraction, 1000) == 123
 

@@ -362,7 +362,7 @@ def test_sky_views_train_with_the_background_at_infinity(scenes, tmp_path, devic
     _assert_sound(trainer, trainer.train().metrics, open_sky=True)
 
 
-@pytest.mark.parametrize("bound", ["lower", "lower-own-light"])
+@pytest.mark.parametrize("bound", ["two-sided", "lower", "lower-own-light"])
 def test_dark_channel_bounds_train_soundly(scenes, tmp_path, device, bound):
     trainer = _trainer(scenes["sky"], tmp_path, device, "--pipeline.dcp-bound", bound)
     res = trainer.pipeline.train_loss(0)
@@ -374,7 +374,7 @@ def test_dark_channel_bounds_train_soundly(scenes, tmp_path, device, bound):
 def test_dark_channel_bound_with_full_upper_weight_is_the_two_sided_loss(scenes, tmp_path, device):
     """``--pipeline.dcp-upper-weight`` reaches the loss: 1 turns the ``lower`` bound back into the
     two-sided loss (same scene, same seed, same first step)."""
-    two = _trainer(scenes["sky"], tmp_path / "two", device)
+    two = _trainer(scenes["sky"], tmp_path / "two", device, "--pipeline.dcp-bound", "two-sided")
     full = _trainer(
         scenes["sky"],
         tmp_path / "full",
