@@ -88,6 +88,12 @@ class CompositeConfig:
     the coarse rays of pixels covered less than half then march to the far bound for that light,
     which moves their samples (T and S differ slightly where the medium varies across a block).
     ``auto``: the haze light with ``background infinite``, the background colour with ``far``."""
+    clean_t0: Annotated[float, Range(0.0, 0.5)] = 0.0
+    """Transmittance below which the clean render fades to the haze light along the ray: the dark
+    channel's J = (I - A) / max(t, t0) + A applied to the model's own composite, so a pixel whose
+    photos hold almost none of its clean colour (sky and far background in dense haze) shows the
+    haze light rather than whatever colour the optimiser left there. Rendering only (the clean,
+    not the composite, and never in training); 0: off."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -130,6 +136,17 @@ class MediumRender:
         if self.coverage is None or self.sky is None:
             return clean
         return clean + (1.0 - self.coverage) * self.sky
+
+    def faded_clean(self, clean: Tensor, t0: float) -> Tensor:
+        """``clean`` [H, W, 3] blended to the pixel's mean haze light S / (1 - T) by T / t0 where
+        T < t0. With I = J*T + S and S = A*(1 - T), this is exactly the clamped inversion
+        (I - A) / max(T, t0) + A of the model's own composite."""
+        if t0 <= 0.0:
+            return clean
+        T = self.pixel_transmittance()  # [H, W, 1]
+        light = self.scattering / (1.0 - T).clamp_min(1.0 - t0)  # [H, W, 3]
+        w = T / T.clamp_min(t0)  # [H, W, 1]: 1 where T >= t0
+        return w * clean + (1.0 - w) * light
 
 
 def _normalised_coords(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
@@ -288,6 +305,11 @@ class MediumCompositor:
         tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
         return self.with_sky(surface, alpha, sky)
+
+    def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
+        """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and
+        faded to the haze light where the photos cannot see it (``clean_t0``)."""
+        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0)
 
     def shows_sky(self) -> bool:
         """Whether the clean render shows the haze light where nothing covers a pixel."""

@@ -416,7 +416,7 @@ class GaussianPipeline(Pipeline):
             surface = self._surface_colour(clean, out, med, self.background)
             T, S = med.pixel_transmittance(), med.scattering
             hazy = composite(surface if med.at_infinity else clean, med)
-            clean = med.clean_with_sky(surface)
+            clean = self.compositor.clean_view(med, surface)
         return {
             "clean": clean.clamp(0, 1),
             "hazy": hazy.clamp(0, 1),

@@ -295,6 +295,35 @@ def test_infinite_background_can_keep_the_background_colour_in_the_clean_render(
     torch.testing.assert_close(med.clean_with_sky(clean), clean)
 
 
+def test_clean_t0_is_the_clamped_inversion_of_the_models_own_composite(device):
+    """``clean_t0``: the clean render shown is (I - A) / max(T, t0) + A of the model's composite I
+    (homogeneous light A, so S = A (1 - T)): unchanged where T >= t0, the light itself where T -> 0,
+    and linear in T / t0 between; T and S are untouched."""
+    cam = _camera(device)
+    field = AnalyticField(b0=0.8, light=0.6).to(device)
+    z = _depth_with_edges(device) * 2.0  # T from about 0.3 (near object) to below 0.01 (far half)
+    alpha = torch.ones_like(z)
+    t0 = 0.1
+    ref = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8))(field, cam, z, alpha)
+    comp = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8, clean_t0=t0))
+    med = comp(field, cam, z, alpha)
+    torch.testing.assert_close(med.transmittance, ref.transmittance)
+    torch.testing.assert_close(med.scattering, ref.scattering)
+    T = med.transmittance.detach()  # [H, W, 1]
+    assert float(T.min()) < 0.02 and float(T.max()) > 0.2  # both regimes are exercised
+    clean = torch.rand(H, W, 3, device=device)
+    hazy = composite(clean, med)  # [H, W, 3]
+    expected = (hazy.detach() - 0.6) / T.clamp_min(t0) + 0.6
+    shown = comp.clean_view(med, clean).detach()
+    torch.testing.assert_close(shown, expected, atol=1e-4, rtol=1e-4)
+    observed = (T >= t0).expand_as(clean)
+    torch.testing.assert_close(shown[observed], clean[observed])
+    opaque = (T < 0.01).expand_as(clean)
+    assert float((shown[opaque] - 0.6).abs().max()) < 0.01
+    off = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8))
+    torch.testing.assert_close(off.clean_view(ref, clean), clean)
+
+
 class _InputsField(AnalyticField):
     """AnalyticField whose extinction scale and light level are gradcheck's inputs, so both gathered
     tables (optical depth and scattering) carry gradients."""

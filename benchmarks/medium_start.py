@@ -1,0 +1,163 @@
+"""How far does training move the medium from its dark-channel start, and where does it end?
+
+For runs on generated scenes (true T and true depth per view), each test view's optical depth
+-ln T is compared with the truth's, both marched to the *true* depth so that only the medium is
+measured (not the rendered depth or coverage):
+
+- ``start``: the homogeneous extinction the pipeline starts from (``estimate_medium``: the median
+  over seed points of -ln T_dcp / distance), recomputed from the run's training views;
+- ``trained``: the run's medium after training.
+
+The ratio model / truth of the optical depth, per true-T bin, says whether a run ends with too
+much haze (> 1) or too little (< 1), and whether training moved it from its start.
+
+    python benchmarks/medium_start.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
+
+Writes OUT.json, OUT.md (one row per run) and OUT.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from bench_output import publish  # noqa: E402
+
+from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
+from pipelines.engine.run_loader import load_run  # noqa: E402
+from pipelines.tridehaze.priors import dcp_per_view, estimate_medium  # noqa: E402
+
+DEPTH_KEY = "gt_depth_file_path"
+BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
+"""True-T bins [lo, hi) of the table (the last one includes 1)."""
+
+
+def _path_length(cam, z: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
+    """Distance along each pixel's ray to z-depth ``z`` [H, W, 1]."""
+    H, W = z.shape[:2]
+    xs = (torch.arange(W, dtype=z.dtype) + 0.5 - float(cam.cx[0])) / float(cam.fx[0])
+    ys = (torch.arange(H, dtype=z.dtype) + 0.5 - float(cam.cy[0])) / float(cam.fy[0])
+    return z * torch.sqrt(1.0 + xs[None, :, None] ** 2 + ys[:, None, None] ** 2)
+
+
+def diagnose(config: Path) -> dict:
+    run = load_run(config)
+    dm, pipe = run.datamanager, run.pipeline
+    est = estimate_medium(dm, dcp_per_view(dm, dm.train_indices), dm.scene.points)
+    if est.beta is None:
+        raise SystemExit(f"{config}: the scene has no seed points, so there is no extinction start")
+    true_od, start_od, trained_od = [], [], []
+    for idx in dm.test_indices:
+        cam = dm.camera(idx)
+        size = (int(cam.height[0]), int(cam.width[0]))
+        true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # [H, W, 1]
+        true_d = reference_map(dm, DEPTH_KEY, idx, size)  # [H, W, 1] z-depth, metres
+        if true_t is None or true_d is None:
+            continue
+        z = true_d * dm.scene.transform.scale  # [H, W, 1] in the normalised frame
+        med = pipe.medium_field().render_view(
+            pipe.compositor, cam, z, torch.ones_like(z), pipe.scene_gaussians(), pipe.rasterizer
+        )
+        true_od.append(-true_t.clamp(1e-4, 0.9999).log().flatten())
+        start_od.append((est.beta * _path_length(cam, z)).flatten())
+        trained_od.append(-med.pixel_transmittance().clamp_min(1e-4).log().flatten())
+    if not true_od:
+        raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
+    od, od0, od1 = (torch.cat(v).cpu().numpy() for v in (true_od, start_od, trained_od))
+    t = np.exp(-od)
+    bins = []
+    for lo, hi in BINS:
+        m = (t >= lo) & ((t < hi) if hi < 1.0 else (t <= 1.0))
+        if m.sum() < 10:
+            continue
+        bins.append({
+            "true_t": [lo, hi], "share": float(m.mean()),
+            "ratio_start": float(np.median(od0[m] / od[m])),
+            "ratio_trained": float(np.median(od1[m] / od[m])),
+            "t_error_start": float((np.exp(-od0[m]) - t[m]).mean()),
+            "t_error_trained": float((np.exp(-od1[m]) - t[m]).mean()),
+        })  # fmt: skip
+    return {
+        "run": str(config.parent),
+        "scene": Path(str(run.config.dataset.data)).name,
+        "seed": run.config.seed,
+        "beta_start": float(est.beta),
+        "t_mae_start": float(np.abs(np.exp(-od0) - t).mean()),
+        "t_mae_trained": float(np.abs(np.exp(-od1) - t).mean()),
+        "bins": bins,
+    }
+
+
+def markdown(rows: list[dict]) -> str:
+    head = (
+        "| scene | seed | T MAE start / trained (true depth) | optical depth model / true, start -> trained, "
+        "per true-T bin |"
+    )
+    lines = [head, "|---|---|---|---|"]
+    for r in rows:
+        cells = "; ".join(
+            f"{b['true_t'][0]:.1f}-{b['true_t'][1]:.1f} ({100 * b['share']:.0f} %): "
+            f"{b['ratio_start']:.2f} -> {b['ratio_trained']:.2f}"
+            for b in r["bins"]
+        )
+        lines.append(
+            f"| {r['scene']} | {r['seed']} | {r['t_mae_start']:.3f} / {r['t_mae_trained']:.3f} | {cells} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Optical-depth ratio (model / true) at the start (hollow) and trained (filled), per bin and run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6, 0.7 * len(rows)), 4))
+    colours = plt.cm.viridis(np.linspace(0, 0.9, len(BINS)))
+    for k, (lo, hi) in enumerate(BINS):
+        label: str | None = f"true T {lo:.1f}-{hi:.1f}"  # on the bin's first point only
+        for x, r in enumerate(rows):
+            b = next((b for b in r["bins"] if b["true_t"] == [lo, hi]), None)
+            if b is None:
+                continue
+            dx = x + (k - 1.5) * 0.15
+            ax.plot([dx, dx], [b["ratio_start"], b["ratio_trained"]], color=colours[k], lw=1)
+            ax.plot(dx, b["ratio_start"], "o", mfc="none", color=colours[k])
+            ax.plot(dx, b["ratio_trained"], "o", color=colours[k], label=label)
+            label = None
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xticks(
+        range(len(rows)), [f"{r['scene']}\nseed {r['seed']}" for r in rows], fontsize=6, rotation=60
+    )
+    ax.set_ylabel("optical depth, model / true")
+    ax.set_title("hollow: the dark-channel start, filled: trained (both to the true depth)", fontsize=8)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
+    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
+    args = ap.parse_args()
+    torch.set_grad_enabled(False)
+    rows = sorted((diagnose(c) for c in args.runs), key=lambda r: (r["scene"], -r["seed"]))
+    publish(
+        args.output, rows, "The medium's optical depth against the truth, at its start and trained",
+        "`python benchmarks/medium_start.py`", markdown(rows), plot,
+    )  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
