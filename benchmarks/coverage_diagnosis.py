@@ -32,10 +32,9 @@ if str(REPO) not in sys.path:
 
 from bench_output import publish  # noqa: E402
 
-from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
+from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
-DEPTH_KEY = "gt_depth_file_path"
 QUANTILES = (0.05, 0.25, 0.5)
 
 
@@ -51,7 +50,7 @@ def diagnose(config: Path) -> dict:
         alphas.append(alpha.flatten())
         size = tuple(alpha.shape[:2])
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
-        true_d = reference_map(dm, DEPTH_KEY, idx, size)  # type: ignore[arg-type]
+        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # type: ignore[arg-type]
         if true_t is None or not pipe.composites_medium:
             continue
         ends = {"rendered": (depth, alpha), "opaque": (depth, torch.ones_like(alpha))}

@@ -31,11 +31,10 @@ if str(REPO) not in sys.path:
 
 from bench_output import publish  # noqa: E402
 
-from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
+from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view, estimate_medium  # noqa: E402
 
-DEPTH_KEY = "gt_depth_file_path"
 BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
 """True-T bins [lo, hi) of the table (the last one includes 1)."""
 
@@ -59,7 +58,7 @@ def diagnose(config: Path) -> dict:
         cam = dm.camera(idx)
         size = (int(cam.height[0]), int(cam.width[0]))
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # [H, W, 1]
-        true_d = reference_map(dm, DEPTH_KEY, idx, size)  # [H, W, 1] z-depth, metres
+        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # [H, W, 1] z-depth, metres
         if true_t is None or true_d is None:
             continue
         z = true_d * dm.scene.transform.scale  # [H, W, 1] in the normalised frame

@@ -36,6 +36,8 @@ REFERENCE_T_KEY = "gt_transmittance_file_path"
 """Per-frame key of a dataset's true transmittance maps (written by ``td-synth``)."""
 REFERENCE_S_KEY = "gt_scattering_file_path"
 """Per-frame key of a dataset's true in-scattering maps (written by ``td-synth``)."""
+REFERENCE_DEPTH_KEY = "gt_depth_file_path"
+"""Per-frame key of a dataset's true z-depth maps in metres (written by ``td-synth``)."""
 T_BINS: tuple[tuple[str, float, float], ...] = (("high", 0.7, 2.0), ("mid", 0.4, 0.7), ("low", -1.0, 0.4))
 """(name, lower bound exclusive, upper bound inclusive) on the true transmittance."""
 INVERT_T_FLOOR = 0.05
