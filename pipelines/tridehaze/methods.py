@@ -105,8 +105,8 @@ def tri_dehaze_constant() -> TrainerConfig:
     "tri-dehaze-fast",
     (
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
-        "tri-plane, at most 20k Gaussians with plateau growth, and the medium chosen by the haze "
-        "probe (none only for a capture it can show to be clear, else the tri-plane; verdict and "
+        "tri-plane, at most 20k Gaussians with plateau growth, the medium frozen at a fifth of the "
+        "run (step 200; tri-dehaze: half), and the medium chosen by the haze probe (none only for a capture it can show to be clear, else the tri-plane; verdict and "
         "confidence in logs/decisions.jsonl)." + MEASURED
     ),
 )
@@ -118,6 +118,7 @@ def tri_dehaze_fast() -> TrainerConfig:
         densify=dict(max_gaussians=20_000, growth="plateau"),
         medium=dict(backend="auto", resolution=32),
         composite=dict(num_samples=8, coarse_rays=300),
+        freeze_fraction=0.2,  # docs/results/medium_recovery.md, session 12: cheaper and not worse at 1000 steps
     )  # fmt: skip
 
 
@@ -160,12 +161,15 @@ def _tri_dehaze_variant(
     densify: dict[str, Any] | None = None,
     medium: dict[str, Any] | None = None,
     composite: dict[str, Any] | None = None,
+    **pipeline_fields: Any,
 ) -> TrainerConfig:
-    """tri-dehaze with fields of its pipeline's sub-configs replaced (``medium=dict(resolution=32)``)."""
+    """tri-dehaze with fields of its pipeline's sub-configs replaced (``medium=dict(resolution=32)``)
+    and of the pipeline itself (``freeze_fraction=0.2``)."""
     base = tri_dehaze()
     p = base.pipeline
     pipeline = replace(
         p,
+        **pipeline_fields,
         model=replace(p.model, **(model or {})),
         densify=replace(p.densify, **(densify or {})),
         medium=replace(p.medium, **(medium or {})),

@@ -119,6 +119,16 @@ def test_paper_preset_is_the_papers_schedule():
     assert scaled_step(short.pipeline.freeze_step, short.pipeline.freeze_fraction, short.max_steps) == 1000
 
 
+def test_fast_preset_keeps_stage_one_at_a_fifth():
+    """The fast preset takes the default's background and bound but freezes the medium at a fifth
+    of its 1000 steps: at that length the longer Stage I cost time and lost on the mean
+    (docs/results/medium_recovery.md, session 12)."""
+    fast, default = parse_args(["tri-dehaze-fast"]), parse_args(["tri-dehaze"])
+    assert (fast.pipeline.random_background, fast.pipeline.dcp_bound) == (True, "lower-own-light")
+    assert (default.pipeline.freeze_fraction, fast.pipeline.freeze_fraction) == (0.5, 0.2)
+    assert scaled_step(fast.pipeline.freeze_step, fast.pipeline.freeze_fraction, fast.max_steps) == 200
+
+
 def test_bad_dataset_through_the_cli_is_one_line(tmp_path):
     """The loader's DataErrors reach the user as one line and exit 2, with nothing written."""
     from tests.data.synth import write_colmap, write_nerfstudio
