@@ -97,6 +97,9 @@ class TrainerConfig:
     """Write a line of metrics to logs/metrics.jsonl every N steps."""
     steps_per_save: Annotated[int, Range(1)] = 1000
     """Write a checkpoint every N steps (and always at the end)."""
+    checkpoints_to_keep: Annotated[int, Range(0)] = 2
+    """How many of the newest checkpoints stay on disk (0: all of them, e.g. to study how a run
+    evolves; each holds the whole scene and medium)."""
     minutes_per_save: float = 5.0
     """Also write one when this many minutes have passed since the last (the first after a fifth
     of it), so a killed run loses at most that much work; 0: by steps only. Each checkpoint's cost

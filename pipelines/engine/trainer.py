@@ -436,7 +436,9 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             **self._elapsed().to_payload(),
         }
-        path = save_checkpoint(checkpoint_path(self.run_dir, step), payload)
+        path = save_checkpoint(
+            checkpoint_path(self.run_dir, step), payload, keep=self.config.checkpoints_to_keep
+        )
         self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save
         record = {"step": step, "seconds": round(self._last_save - t0, 4), "bytes": path.stat().st_size}
         (self.run_dir / "logs").mkdir(exist_ok=True)

@@ -85,6 +85,15 @@ def _cfg(scene: Path, out: Path, device: torch.device, *extra: str):
     )
 
 
+def test_checkpoints_to_keep(tiny_scene, tmp_path, device):
+    """``--checkpoints-to-keep 0`` keeps every checkpoint, to study how a run evolves (the default,
+    2, is checked by the test below)."""
+    cfg = _cfg(tiny_scene, tmp_path, device, "--checkpoints-to-keep", "0")
+    run = Trainer(cfg).train().run_dir
+    names = sorted(p.name for p in (run / "checkpoints").iterdir())
+    assert names == ["step-0000025.ckpt", "step-0000050.ckpt", "step-0000060.ckpt"]
+
+
 def test_training_learns_and_writes_run_folder(tiny_scene, tmp_path, device):
     cfg = _cfg(tiny_scene, tmp_path, device)
     trainer = Trainer(cfg)
