@@ -207,7 +207,7 @@ def test_infinite_background_sees_the_medium_to_infinity(device, stride):
     open_sky = med.sky[:, :10]  # only marched to infinity where the pixel is not fully covered
     torch.testing.assert_close(open_sky, torch.full_like(open_sky, 0.6), atol=1e-5, rtol=1e-5)
     T_pix = med.pixel_transmittance()
-    assert float(T_pix[:, :8].abs().max()) == 0.0
+    assert float(T_pix[:, :8].detach().abs().max()) == 0.0
     half = 0.5 * ref.scattering[:, 8:10] + 0.5 * 0.6
     torch.testing.assert_close(med.scattering[:, 8:10], half, atol=1e-5, rtol=1e-5)
     torch.testing.assert_close(T_pix[:, 8:10], 0.5 * ref.transmittance[:, 8:10], atol=1e-5, rtol=1e-5)
@@ -233,7 +233,7 @@ def test_infinite_background_in_a_varying_medium_continues_with_the_boundary_val
     to_far = MediumCompositor(replace(cfg, background="far"))(
         field, cam, torch.full_like(z, 6.0), torch.ones_like(z)
     )
-    assert float(med.pixel_transmittance().max()) == 0.0
+    assert float(med.pixel_transmittance().detach().max()) == 0.0
     # the sky is at least what the march to the far bound gathered, and adds light in proportion to T(far)
     extra = med.sky - to_far.scattering  # [H, W, 3]
     assert float(extra.min()) >= 0.0
