@@ -3,6 +3,7 @@ and the figure, side by side under one output stem."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -18,3 +19,28 @@ def publish(
     stem.with_suffix(".json").write_text(json.dumps(rows, indent=2))
     stem.with_suffix(".md").write_text(f"# {title}\n\n{how}\n\n{table}")
     plot(rows, stem.with_suffix(".png"))
+
+
+def diagnose_runs_main(
+    doc: str,
+    diagnose: Callable[[Path], dict],
+    title: str,
+    how: str,
+    table: Callable[[list[dict]], str],
+    plot: Callable[[list[dict], Path], None],
+    order: Callable[[dict], object] | None = None,
+) -> None:
+    """The command line of a diagnosis of trained runs: ``--runs CONFIG.yml ... --output STEM``,
+    one row per run from ``diagnose`` (without autograd), sorted by ``order`` when given, then
+    :func:`publish`."""
+    import torch
+
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
+    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
+    args = ap.parse_args()
+    torch.set_grad_enabled(False)
+    rows = [diagnose(c) for c in args.runs]
+    if order is not None:
+        rows.sort(key=order)
+    publish(args.output, rows, title, how, table(rows), plot)

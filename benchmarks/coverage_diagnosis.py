@@ -19,7 +19,6 @@ Writes OUT.json, OUT.md (one row per run) and OUT.png.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -30,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import publish  # noqa: E402
+from bench_output import diagnose_runs_main  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -114,15 +113,9 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
-    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
-    args = ap.parse_args()
-    torch.set_grad_enabled(False)
-    rows = [diagnose(c) for c in args.runs]
-    publish(
-        args.output, rows, "Transmittance error by end depth, and coverage",
-        "`python benchmarks/coverage_diagnosis.py`", markdown(rows), plot,
+    diagnose_runs_main(
+        __doc__, diagnose, "Transmittance error by end depth, and coverage",
+        "`python benchmarks/coverage_diagnosis.py`", markdown, plot,
     )  # fmt: skip
 
 

@@ -18,7 +18,6 @@ Writes OUT.json, OUT.md (one row per run) and OUT.png.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -29,22 +28,15 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import publish  # noqa: E402
+from bench_output import diagnose_runs_main  # noqa: E402
 
+from components.medium.compositing import pixel_path_lengths  # noqa: E402
 from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view, estimate_medium  # noqa: E402
 
 BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
 """True-T bins [lo, hi) of the table (the last one includes 1)."""
-
-
-def _path_length(cam, z: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
-    """Distance along each pixel's ray to z-depth ``z`` [H, W, 1]."""
-    H, W = z.shape[:2]
-    xs = (torch.arange(W, dtype=z.dtype) + 0.5 - float(cam.cx[0])) / float(cam.fx[0])
-    ys = (torch.arange(H, dtype=z.dtype) + 0.5 - float(cam.cy[0])) / float(cam.fy[0])
-    return z * torch.sqrt(1.0 + xs[None, :, None] ** 2 + ys[:, None, None] ** 2)
 
 
 def diagnose(config: Path) -> dict:
@@ -66,7 +58,8 @@ def diagnose(config: Path) -> dict:
             pipe.compositor, cam, z, torch.ones_like(z), pipe.scene_gaussians(), pipe.rasterizer
         )
         true_od.append(-true_t.clamp(1e-4, 0.9999).log().flatten())
-        start_od.append((est.beta * _path_length(cam, z)).flatten())
+        path = z[..., 0] * pixel_path_lengths(cam, size[0], size[1], z.device, z.dtype)  # [H, W]
+        start_od.append((est.beta * path).flatten())
         trained_od.append(-med.pixel_transmittance().clamp_min(1e-4).log().flatten())
     if not true_od:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
@@ -146,15 +139,9 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", type=Path, nargs="+", required=True, help="config.yml of trained runs")
-    ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
-    args = ap.parse_args()
-    torch.set_grad_enabled(False)
-    rows = sorted((diagnose(c) for c in args.runs), key=lambda r: (r["scene"], -r["seed"]))
-    publish(
-        args.output, rows, "The medium's optical depth against the truth, at its start and trained",
-        "`python benchmarks/medium_start.py`", markdown(rows), plot,
+    diagnose_runs_main(
+        __doc__, diagnose, "The medium's optical depth against the truth, at its start and trained",
+        "`python benchmarks/medium_start.py`", markdown, plot, order=lambda r: (r["scene"], -r["seed"]),
     )  # fmt: skip
 
 

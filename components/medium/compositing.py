@@ -174,7 +174,7 @@ def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
     return d_cam @ c2w[:3, :3].T, c2w[:3, 3]
 
 
-def _pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+def pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     """[H, W] path length per unit z of each pixel-centre ray, sqrt(1 + x^2 + y^2) in normalised
     image coordinates: the rotation leaves lengths alone, so only the intrinsics matter."""
     xs = torch.arange(W, device=device, dtype=dtype) + 0.5
@@ -289,7 +289,7 @@ class MediumCompositor:
         # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
         # rescaled to the pixel's own path length (exact for a homogeneous medium)
         rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
-        pix_len = _pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
+        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
         grid = ReadoutGrid(table, rays, wgt, pix_len, step_len.reshape(-1), zfar.reshape(-1), K)
 
         fused = self.config.fused_readout
@@ -357,7 +357,7 @@ def homogeneous_along_rays(
     S = L (1 - T), path = z * |d| for the pixel's ray direction d with unit z.
     """
     H, W = beta.shape
-    path = end_depth[..., 0] * _pixel_path_lengths(camera, H, W, beta.device, beta.dtype)  # [H, W]
+    path = end_depth[..., 0] * pixel_path_lengths(camera, H, W, beta.device, beta.dtype)  # [H, W]
     tau = beta * path
     T = torch.exp(-tau).clamp_min(t_floor)
     share = -torch.expm1(-tau)  # [H, W] scattered fraction

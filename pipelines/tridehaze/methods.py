@@ -106,8 +106,9 @@ def tri_dehaze_constant() -> TrainerConfig:
     (
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
         "tri-plane, at most 20k Gaussians with plateau growth, the medium frozen at a fifth of the "
-        "run (step 200; tri-dehaze: half), and the medium chosen by the haze probe (none only for a capture it can show to be clear, else the tri-plane; verdict and "
-        "confidence in logs/decisions.jsonl)." + MEASURED
+        "run (step 200; tri-dehaze: half), and the medium chosen by the haze probe (none only for a "
+        "capture it can show to be clear, else the tri-plane; verdict and confidence in "
+        "logs/decisions.jsonl)." + MEASURED
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:
