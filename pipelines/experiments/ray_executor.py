@@ -286,6 +286,10 @@ class RayExecutor:
                 ship = None if self.opts.shared_fs == "yes" else ray.put(pack_folder(job.scene))
                 scenes[job.scene] = (folder_fingerprint(job.scene), ship)
         board = ray.remote(SweepBoard).options(num_cpus=0).remote()
+        # the board must be up before any task starts: a start notice sent to an actor that is
+        # still being created waits in the sender's worker and dies with it, so a first attempt
+        # killed early went unrecorded and its retry counted as attempt 1
+        ray.get(board.snapshot.remote())
         task = ray.remote(run_task)
         refs = {}
         for job in todo:
