@@ -42,6 +42,21 @@ def test_help_lists_methods():
     assert "vanilla-gs" in res.stdout
 
 
+def test_help_into_a_closed_pipe_exits_quietly():
+    """`td-train tri-dehaze --help | head -1`: the reader is gone before the help is written (the
+    read end closes first here, so every write fails), which is a stop, not a crash."""
+    env = dict(os.environ)
+    env.pop("TRIDEHAZE_PLUGINS", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tridehaze_plugin.cli.train", "tri-dehaze", "--help"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    )  # fmt: skip
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 141, (proc.returncode, err)
+    assert b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
+
+
 def test_method_help_shows_field_docs():
     res = run_cli("vanilla-gs", "--help")
     assert res.returncode == 0, res.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import shlex
@@ -54,6 +55,12 @@ def run_cli(main: Callable[[], object]) -> None:
         main()
     except UserError as exc:
         fail(exc.one_line())
+    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly like other Unix tools
+        # (before OSError, its base class); stdout goes to /dev/null so that the interpreter's
+        # final flush of the unread output does not raise a second time
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise SystemExit(141) from None
     except OSError as exc:
         if exc.errno not in SYSTEM_LIMITS:
             raise  # anything else is a bug: keep its traceback
@@ -61,9 +68,6 @@ def run_cli(main: Callable[[], object]) -> None:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         raise SystemExit(130) from None
-    except BrokenPipeError:  # output piped into e.g. `head`: stop quietly like other Unix tools
-        sys.stderr.close()
-        raise SystemExit(141) from None
 
 
 def check_output_folder(path: Path, flag: str = "--output-dir") -> None:
