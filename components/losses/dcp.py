@@ -15,6 +15,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
+try:  # opencv-contrib's module; absent where a plain opencv build shadows it
+    from cv2 import ximgproc
+except ImportError:  # pragma: no cover - depends on the installed OpenCV build
+    ximgproc = None
+
 BRIGHTEST_FRACTION = 1e-3
 """Share of the dark channel's brightest pixels whose mean colour is the airlight (He et al.: 0.1%)."""
 
@@ -55,6 +60,32 @@ def _as_float(image: np.ndarray) -> np.ndarray:
     return np.clip(image.astype(np.float32), 0.0, 1.0)
 
 
+def guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """He et al.'s guided filter of ``src`` [H, W] by a grey ``guide`` [H, W] (float32).
+
+    OpenCV's contrib build (``cv2.ximgproc``) when it is importable; else the same filter on base
+    OpenCV's box filter (equal within 2e-5, tests/losses/test_dcp.py). A plain
+    opencv-python(-headless) installed beside or instead of the contrib build (GPU images ship one)
+    hides ``ximgproc``, and the dark channel should not fail for it."""
+    if ximgproc is not None:
+        return ximgproc.guidedFilter(guide, src, radius, eps)
+    return box_guided_filter(guide, src, radius, eps)
+
+
+def box_guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """The guided filter from means over (2r+1)^2 windows, reflected at the border as ximgproc does."""
+    size = (2 * radius + 1, 2 * radius + 1)
+
+    def mean(x: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(x, -1, size, normalize=True, borderType=cv2.BORDER_REFLECT)
+
+    g, p = guide.astype(np.float32), src.astype(np.float32)  # [H, W]
+    mg, mp = mean(g), mean(p)
+    a = (mean(g * p) - mg * mp) / (mean(g * g) - mg * mg + eps)  # [H, W] local linear model
+    b = mp - a * mg
+    return (mean(a) * g + mean(b)).astype(np.float32)
+
+
 def estimate_dcp(
     image: np.ndarray,
     patch: int | None = None,
@@ -79,7 +110,7 @@ def estimate_dcp(
     t = 1.0 - omega * dark_channel(img / np.maximum(airlight, 1e-3), patch)  # [H, W]
     if radius > 0:
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)  # [H, W]
-        t = cv2.ximgproc.guidedFilter(grey, t.astype(np.float32), radius, guided_eps)
+        t = guided_filter(grey, t.astype(np.float32), radius, guided_eps)
     t = np.clip(t, t0, 1.0).astype(np.float32)
     return DCPResult(transmittance=t, airlight=airlight, dark=dark)
 

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from components.losses.dcp import dark_channel_bound, dcp_transmittance_loss, dehaze, estimate_dcp
+from components.losses.dcp import (
+    box_guided_filter,
+    dark_channel_bound,
+    dcp_transmittance_loss,
+    dehaze,
+    estimate_dcp,
+    guided_filter,
+)
 
 AIRLIGHT = np.array([0.8, 0.85, 0.9], np.float32)
 H, W = 96, 128
@@ -139,3 +146,36 @@ def test_transmittance_bound_with_an_upper_weight_is_between_the_bound_and_the_m
     assert loss.item() == pytest.approx((0.3**2 + upper_weight * 0.3**2) / 4)
     if upper_weight == 1.0:  # the two-sided loss
         assert loss.item() == pytest.approx(dcp_transmittance_loss(t, t_dcp).item())
+
+
+@pytest.mark.parametrize("shape,radius", [((72, 96), 12), ((31, 17), 4), ((8, 8), 1)])
+def test_box_guided_filter_matches_opencv_contrib(shape, radius):
+    """The fallback for OpenCV builds without ximgproc equals the contrib filter, the reference
+    (opencv-contrib is a dependency of the project, so the reference is always there)."""
+    from cv2 import ximgproc
+
+    rng = np.random.default_rng(3)
+    guide = rng.random(shape).astype(np.float32)
+    src = (0.5 * guide + 0.5 * rng.random(shape)).astype(
+        np.float32
+    )  # correlated, as t is with the grey image
+    ref = ximgproc.guidedFilter(guide, src, radius, 1e-3)
+    out = box_guided_filter(guide, src, radius, 1e-3)
+    assert out.shape == shape and out.dtype == np.float32
+    np.testing.assert_allclose(out, ref, rtol=0, atol=2e-5)  # float32 rounding of the window sums
+    np.testing.assert_array_equal(guided_filter(guide, src, radius, 1e-3), ref)  # contrib present: it is used
+
+
+def test_dark_channel_without_opencv_contrib(monkeypatch):
+    """Where only a plain OpenCV build is installed, the dark channel uses the box-filter fallback
+    and gives the same transmittance."""
+    import components.losses.dcp as dcp_module
+
+    rng = np.random.default_rng(5)
+    img = rng.random((40, 56, 3)).astype(np.float32)
+    ref = estimate_dcp(img)
+    monkeypatch.setattr(dcp_module, "ximgproc", None)
+    monkeypatch.delattr(dcp_module.cv2, "ximgproc")  # as if never installed: a direct call would fail
+    out = estimate_dcp(img)
+    np.testing.assert_allclose(out.transmittance, ref.transmittance, rtol=0, atol=2e-5)
+    np.testing.assert_array_equal(out.airlight, ref.airlight)
