@@ -1,7 +1,9 @@
-"""Depth regularisers for the Gaussian depth render: Pearson correlation and edge-aware smoothness.
+"""Depth regularisers for the Gaussian depth render: Pearson correlation, edge-aware smoothness,
+and a log-depth L1 for priors that carry the scene's own scale.
 
-Both are scale-free on purpose: the pseudo-depth priors (files, dark channel, SfM) are only
-defined up to an unknown affine map, and the rendered depth lives in the normalised world.
+The first two are scale-free on purpose: most pseudo-depth priors (files, dark channel) are only
+defined up to an unknown affine map. Sparse SfM depth is the exception: the points live in the
+cameras' own frame, so :func:`log_depth_l1` can hold the rendered depth to it.
 Masks are applied as weights (no boolean indexing, no ``.item()``), so neither function forces a
 host-device sync in the training step.
 """
@@ -65,3 +67,19 @@ def edge_aware_smoothness(
     vx = w[:, 1:] * w[:, :-1]  # [H, W-1]
     vy = w[1:, :] * w[:-1, :]  # [H-1, W]
     return (wx * vx).sum() / vx.sum().clamp_min(1.0) + (wy * vy).sum() / vy.sum().clamp_min(1.0)
+
+
+def log_depth_l1(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: float = 1e-6) -> Tensor:
+    """Mean |ln pred - ln prior| over ``mask`` [H, W]: the relative depth error, for a prior in the
+    rendered depth's own units (sparse SfM z). L1 so that the SfM cloud's outliers pull like a
+    median, not a mean. Non-finite or non-positive prior pixels are ignored; a differentiable 0
+    below ``MIN_VALID_PIXELS``."""
+    valid = torch.isfinite(prior) & (prior > 0)
+    if mask is not None:
+        valid = valid & mask.bool()
+    w = valid.to(pred.dtype)  # [H, W]
+    count = w.sum()
+    q = torch.where(valid, prior.to(pred.dtype), torch.ones_like(pred))
+    err = (pred.clamp_min(eps).log() - q.log()).abs()  # [H, W]
+    loss = _masked_mean(err, w, count.clamp_min(1.0))
+    return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)

@@ -19,7 +19,7 @@ from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
-from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
+from components.losses.depth import edge_aware_smoothness, log_depth_l1, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
@@ -88,6 +88,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """Weight of the depth loss (1 - Pearson correlation + lambda_smooth * smoothness); 0 = off."""
     lambda_smooth: Annotated[float, NonNegative] = 0.1
     """Weight of edge-aware depth smoothness inside the depth loss; 0 = off."""
+    lambda_depth_metric: Annotated[float, NonNegative] = 0.0
+    """Weight of the log-depth L1 against a pseudo-depth in the scene's own scale (the ``sfm``
+    prior only; the others are relative); 0 = off. The Pearson term cannot see the depth's scale,
+    and a march to too short a depth needs too little haze (docs/results/medium_recovery.md)."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -168,7 +172,8 @@ class _PriorPlan:
         config: GaussianPipelineConfig, dm: DataManager, uses_medium: bool, training: bool
     ) -> _PriorPlan:
         source = resolve_depth_prior(config.depth_prior, dm)
-        needs_depth = training and config.lambda_depth > 0 and source != "none"
+        weighted = config.lambda_depth > 0 or config.lambda_depth_metric > 0
+        needs_depth = training and weighted and source != "none"
         dehaze_inputs = training and config.input_dehaze == "dcp"
         needs_dcp = training and uses_medium and (config.init_medium or config.lambda_dcp > 0)
         needs_dcp = needs_dcp or dehaze_inputs or (needs_depth and source == "dcp")
@@ -313,6 +318,15 @@ class GaussianPipeline(Pipeline):
                 metrics["depth_corr"] = 1.0 - corr.detach()
             if cfg.lambda_smooth > 0:
                 loss = loss + cfg.lambda_depth * cfg.lambda_smooth * edge_aware_smoothness(d, target)
+        if (
+            cfg.lambda_depth_metric > 0
+            and prior is not None
+            and prior.depth is not None
+            and prior.depth_metric
+        ):
+            metric = log_depth_l1(depth[..., 0], prior.depth, prior.depth_valid)
+            loss = loss + cfg.lambda_depth_metric * metric
+            metrics["depth_log_l1"] = metric.detach()
         if med is not None:
             loss = loss + self._medium_priors(step, stage, target, med, prior, metrics)
         self._last = out

@@ -37,6 +37,8 @@ class ViewPrior:
     airlight: Tensor | None = None  # [3] the view's dark-channel airlight (None: not computed)
     depth: Tensor | None = None  # [H, W] pseudo-depth (relative), None: no depth loss on this view
     depth_valid: Tensor | None = None  # [H, W] bool
+    depth_metric: bool = False
+    """``depth`` is z in the scene's own frame (projected SfM points), so its scale can be used."""
 
 
 @dataclass
@@ -147,6 +149,7 @@ def build_view_priors(
             d, valid = depth_from_sfm(
                 points.float().cpu(), cpu.viewmats()[0].float(), cpu.Ks()[0].float(), H, W
             )
+            prior.depth_metric = True
         elif source == "warmup" and warmup_depths is not None:
             d = warmup_depths[i]
             valid = torch.isfinite(d) & (d > 0)

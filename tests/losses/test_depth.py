@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -95,3 +97,31 @@ def test_smoothness_scale_invariant_masked_and_differentiable(device):
     dg = d.clone().requires_grad_()
     edge_aware_smoothness(dg, img).backward()
     assert torch.isfinite(dg.grad).all() and dg.grad.abs().sum() > 0
+
+
+def test_log_depth_l1_is_the_mean_relative_error_over_valid_pixels():
+    from components.losses.depth import MIN_VALID_PIXELS, log_depth_l1
+
+    prior = torch.full((8, 8), 2.0)
+    prior[0, :4] = float("inf")  # not a prior pixel
+    prior[1, :4] = 0.0  # nor this
+    mask = torch.ones(8, 8, dtype=torch.bool)
+    mask[7] = False
+    pred = torch.full((8, 8), 2.0, requires_grad=True)
+    with torch.no_grad():
+        pred[2:4] = 2.0 * math.e  # ln error 1 on 16 pixels
+        pred[7] = 100.0  # masked out
+    loss = log_depth_l1(pred, prior, mask)
+    n_valid = 64 - 8 - 8  # minus the bad prior pixels and the masked row
+    assert loss.item() == pytest.approx(16 / n_valid, rel=1e-5)
+    loss.backward()
+    assert (
+        torch.isfinite(pred.grad).all()
+        and pred.grad[7].abs().sum() == 0
+        and pred.grad[0, :4].abs().sum() == 0
+    )
+    # same relative error whatever the scale: the loss is on ln z
+    assert log_depth_l1(pred.detach() * 10, prior * 10, mask).item() == pytest.approx(loss.item(), rel=1e-5)
+    few = torch.zeros(8, 8, dtype=torch.bool)
+    few.view(-1)[: MIN_VALID_PIXELS - 1] = True
+    assert log_depth_l1(pred, prior, few).item() == 0.0
