@@ -191,3 +191,24 @@ def test_auto_depth_prior_prefers_files_then_sfm_then_warmup(device):
     assert resolve_depth_prior("auto", dm([Path("a"), None], pts)) == "sfm"
     assert resolve_depth_prior("auto", dm([None, None], None)) == "warmup"
     assert resolve_depth_prior("dcp", dm([Path("a"), Path("b")], pts)) == "dcp"
+
+
+@pytest.mark.parametrize(
+    "prior,lambda_depth,applied", [("sfm", "0.05", True), ("sfm", "0", True), ("dcp", "0.05", False)]
+)
+def test_metric_depth_term_only_against_the_sfm_prior(
+    hazy_scene, tmp_path, device, prior, lambda_depth, applied
+):
+    """The log-depth L1 needs a prior in the scene's own scale: the SfM points, not the dark
+    channel's relative depth; it does not depend on the Pearson term being on."""
+    cfg = _config(hazy_scene, tmp_path, device, "--pipeline.depth-prior", prior, "--pipeline.lambda-depth",
+                  lambda_depth, "--pipeline.lambda-depth-metric", "0.1")  # fmt: skip
+    from rich.console import Console
+
+    trainer = Trainer(cfg, console=Console(quiet=True))
+    trainer.setup()
+    result = trainer.pipeline.train_loss(0)
+    assert ("depth_log_l1" in result.metrics) is applied
+    if applied:
+        value = float(result.metrics["depth_log_l1"])
+        assert 0.0 < value < 5.0  # a relative error, and the seed Gaussians are not at every point's depth
