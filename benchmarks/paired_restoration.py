@@ -147,18 +147,19 @@ def plot(rows: list[dict], path: Path) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     scenes = sorted({r["scene"] for r in rows})
+    seeds = sorted({r["seed"] for r in rows})
     for ax, name, label in (
         (axes[0], "psnr", "restoration PSNR change (dB)"),
         (axes[1], "t_mae", "T MAE change"),
     ):
-        for i, scene in enumerate(scenes):
-            for r in rows:
-                d = _delta(r, name)
-                if r["scene"] == scene and d is not None:
-                    ax.scatter(i, d, color="C0" if r["seed"] == min(x["seed"] for x in rows) else "C1", s=25)
+        for k, seed in enumerate(seeds):
+            pts = [(scenes.index(r["scene"]), _delta(r, name)) for r in rows if r["seed"] == seed]
+            pts = [(x, d) for x, d in pts if d is not None]
+            ax.scatter([x for x, _ in pts], [d for _, d in pts], color=f"C{k}", s=25, label=f"seed {seed}")
         ax.axhline(0, color="grey", lw=0.8)
         ax.set_xticks(range(len(scenes)), scenes, rotation=45, ha="right", fontsize=8)
         ax.set_ylabel(label)
+    axes[1].legend(fontsize=8)
     axes[0].set_title("second arm minus first, one dot per seed")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
