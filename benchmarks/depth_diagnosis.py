@@ -24,27 +24,20 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main  # noqa: E402
+from reference_views import TRUE_T_BINS as BINS  # noqa: E402
+from reference_views import reference_views  # noqa: E402
 
 from components.medium.compositing import pixel_path_lengths  # noqa: E402
-from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
-
-BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
-"""True-T bins [lo, hi) of the table (the last one includes 1)."""
 
 
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
     ratio, t_true, err_depth, err_model, alpha = [], [], [], [], []
-    for idx in dm.test_indices:
-        cam = dm.camera(idx)
-        H, W = int(cam.height[0]), int(cam.width[0])
-        true_t = reference_map(dm, REFERENCE_T_KEY, idx, (H, W))  # [H, W, 1]
-        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, (H, W))  # [H, W, 1] z-depth, metres
-        if true_t is None or true_d is None:
-            continue
-        true_t, true_z = true_t[..., 0], true_d[..., 0] * dm.scene.transform.scale  # [H, W] normalised frame
+    for view in reference_views(dm):
+        cam, H, W = view.camera, view.height, view.width
+        true_t, true_z = view.true_t[..., 0], view.true_z[..., 0]  # [H, W], z in the normalised frame
         out = pipe.render(cam)
         far = pipe.compositor.far_bound(pipe.medium_field())
         z = pipe.compositor.end_depth(out["depth"], out["alpha"], far)[..., 0]  # [H, W] as marched

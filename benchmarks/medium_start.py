@@ -29,14 +29,12 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main  # noqa: E402
+from reference_views import TRUE_T_BINS as BINS  # noqa: E402
+from reference_views import reference_views  # noqa: E402
 
 from components.medium.compositing import pixel_path_lengths  # noqa: E402
-from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view, estimate_medium  # noqa: E402
-
-BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
-"""True-T bins [lo, hi) of the table (the last one includes 1)."""
 
 
 def diagnose(config: Path) -> dict:
@@ -46,14 +44,8 @@ def diagnose(config: Path) -> dict:
     if est.beta is None:
         raise SystemExit(f"{config}: the scene has no seed points, so there is no extinction start")
     true_od, start_od, trained_od = [], [], []
-    for idx in dm.test_indices:
-        cam = dm.camera(idx)
-        size = (int(cam.height[0]), int(cam.width[0]))
-        true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # [H, W, 1]
-        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # [H, W, 1] z-depth, metres
-        if true_t is None or true_d is None:
-            continue
-        z = true_d * dm.scene.transform.scale  # [H, W, 1] in the normalised frame
+    for view in reference_views(dm):
+        cam, size, true_t, z = view.camera, (view.height, view.width), view.true_t, view.true_z  # [H, W, 1]
         med = pipe.medium_field().render_view(
             pipe.compositor, cam, z, torch.ones_like(z), pipe.scene_gaussians(), pipe.rasterizer
         )
