@@ -4,7 +4,7 @@ and a log-depth L1 for priors that carry the scene's own scale.
 The first two are scale-free on purpose: most pseudo-depth priors (files, dark channel) are only
 defined up to an unknown affine map. Sparse SfM depth is the exception: the points live in the
 cameras' own frame, so :func:`log_depth_l1` can hold the rendered depth to it.
-Masks are applied as weights (no boolean indexing, no ``.item()``), so neither function forces a
+Masks are applied as weights (no boolean indexing, no ``.item()``), so no function here forces a
 host-device sync in the training step.
 """
 
@@ -21,6 +21,17 @@ def _masked_mean(x: Tensor, w: Tensor, n: Tensor) -> Tensor:
     return (x * w).sum() / n
 
 
+def _prior_pixels(prior: Tensor, mask: Tensor | None) -> Tensor:
+    """[H, W] bool: finite prior pixels inside ``mask``."""
+    valid = torch.isfinite(prior)
+    return valid & mask.bool() if mask is not None else valid
+
+
+def _zero_if_few(loss: Tensor, count: Tensor) -> Tensor:
+    """``loss``, or a differentiable 0 where fewer than ``MIN_VALID_PIXELS`` pixels were valid."""
+    return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)
+
+
 def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: float = 1e-8) -> Tensor:
     """1 - Pearson correlation of ``pred`` and ``prior`` [H, W] over ``mask`` (bool [H, W]).
 
@@ -29,9 +40,7 @@ def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, 
     Non-finite prior pixels are ignored. ``eps`` is added to the variance so a constant map gives a
     finite loss (1) and finite gradients. Returns a differentiable 0 below ``MIN_VALID_PIXELS``.
     """
-    valid = torch.isfinite(prior)
-    if mask is not None:
-        valid = valid & mask.bool()
+    valid = _prior_pixels(prior, mask)
     w = valid.to(pred.dtype)  # [H, W]
     count = w.sum()
     n = count.clamp_min(1.0)
@@ -42,7 +51,7 @@ def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, 
     p = p / torch.sqrt(p.square().sum() / n + eps)
     q = q / torch.sqrt(q.square().sum() / n + eps)
     loss = 1.0 - (p * q).sum() / n
-    return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)
+    return _zero_if_few(loss, count)
 
 
 def edge_aware_smoothness(
@@ -74,12 +83,9 @@ def log_depth_l1(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: f
     rendered depth's own units (sparse SfM z). L1 so that the SfM cloud's outliers pull like a
     median, not a mean. Non-finite or non-positive prior pixels are ignored; a differentiable 0
     below ``MIN_VALID_PIXELS``."""
-    valid = torch.isfinite(prior) & (prior > 0)
-    if mask is not None:
-        valid = valid & mask.bool()
+    valid = _prior_pixels(prior, mask) & (prior > 0)
     w = valid.to(pred.dtype)  # [H, W]
     count = w.sum()
     q = torch.where(valid, prior.to(pred.dtype), torch.ones_like(pred))
     err = (pred.clamp_min(eps).log() - q.log()).abs()  # [H, W]
-    loss = _masked_mean(err, w, count.clamp_min(1.0))
-    return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)
+    return _zero_if_few(_masked_mean(err, w, count.clamp_min(1.0)), count)

@@ -35,7 +35,9 @@ class ViewPrior:
 
     t_dcp: Tensor | None = None  # [H, W] dark-channel transmittance (None: not computed)
     airlight: Tensor | None = None  # [3] the view's dark-channel airlight (None: not computed)
-    depth: Tensor | None = None  # [H, W] pseudo-depth (relative), None: no depth loss on this view
+    depth: Tensor | None = (
+        None  # [H, W] pseudo-depth (relative unless depth_metric), None: no depth loss on this view
+    )
     depth_valid: Tensor | None = None  # [H, W] bool
     depth_metric: bool = False
     """``depth`` is z in the scene's own frame (projected SfM points), so its scale can be used."""
