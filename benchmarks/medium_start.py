@@ -9,7 +9,11 @@ measured (not the rendered depth or coverage):
 - ``trained``: the run's medium after training.
 
 The ratio model / truth of the optical depth, per true-T bin, says whether a run ends with too
-much haze (> 1) or too little (< 1), and whether training moved it from its start.
+much haze (> 1) or too little (< 1), and whether training moved it from its start. Beside it, the
+medium's light against the true light (``S / (1 - T)``, summed over the pixels whose true T is
+below ``LIGHT_T_MAX``, where the haze light is a large share of the pixel): a light too dim needs
+more haze to explain the same in-scattering, a light too bright less, so the two ratios read
+together.
 
     python benchmarks/medium_start.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
 
@@ -23,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import Tensor
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
@@ -33,8 +38,18 @@ from reference_views import TRUE_T_BINS as BINS  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 
 from components.medium.compositing import pixel_path_lengths  # noqa: E402
+from pipelines.engine.medium_recovery import REFERENCE_S_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view, estimate_medium  # noqa: E402
+
+LIGHT_T_MAX = 0.6
+"""True T below which a pixel counts towards the light ratio."""
+
+
+def _light_sums(scattering: Tensor, transmittance: Tensor, mask: Tensor) -> Tensor:
+    """[4]: sum of S [3] and of 1 - T over the masked pixels; their ratio is the mean light S / (1 - T)
+    weighted by 1 - T."""
+    return torch.cat([scattering[mask].sum(0), (1.0 - transmittance[mask]).sum()[None]]).cpu()
 
 
 def diagnose(config: Path) -> dict:
@@ -44,6 +59,7 @@ def diagnose(config: Path) -> dict:
     if est.beta is None:
         raise SystemExit(f"{config}: the scene has no seed points, so there is no extinction start")
     true_od, start_od, trained_od = [], [], []
+    light_true, light_model = torch.zeros(4), torch.zeros(4)
     for view in reference_views(dm):
         cam, size, true_t, z = view.camera, (view.height, view.width), view.true_t, view.true_z  # [H, W, 1]
         med = pipe.medium_field().render_view(
@@ -53,6 +69,11 @@ def diagnose(config: Path) -> dict:
         path = z[..., 0] * pixel_path_lengths(cam, size[0], size[1], z.device, z.dtype)  # [H, W]
         start_od.append((est.beta * path).flatten())
         trained_od.append(-med.pixel_transmittance().clamp_min(1e-4).log().flatten())
+        true_s = reference_map(dm, REFERENCE_S_KEY, view.index, size)  # [H, W, 3]
+        if true_s is not None:
+            m = true_t[..., 0] < LIGHT_T_MAX  # [H, W]
+            light_true += _light_sums(true_s, true_t[..., 0], m)
+            light_model += _light_sums(med.scattering, med.pixel_transmittance()[..., 0], m)
     if not true_od:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
     od, od0, od1 = (torch.cat(v).cpu().numpy() for v in (true_od, start_od, trained_od))
@@ -76,24 +97,38 @@ def diagnose(config: Path) -> dict:
         "beta_start": float(est.beta),
         "t_mae_start": float(np.abs(np.exp(-od0) - t).mean()),
         "t_mae_trained": float(np.abs(np.exp(-od1) - t).mean()),
+        "light_start": est.airlight.tolist(),
+        "light_ratio_start": _ratio(est.airlight, light_true),
+        "light_ratio_trained": _ratio(light_model[:3] / light_model[3].clamp_min(1e-6), light_true),
         "bins": bins,
     }
 
 
+def _ratio(light: Tensor, true_sums: Tensor) -> float | None:
+    """Mean over channels of model / true light (``true_sums`` from :func:`_light_sums`, summed over
+    views); None where no pixel had true T below ``LIGHT_T_MAX``."""
+    if float(true_sums[3]) <= 0:
+        return None
+    return float((light.cpu() / (true_sums[:3] / true_sums[3]).clamp_min(1e-6)).mean())
+
+
 def markdown(rows: list[dict]) -> str:
     head = (
-        "| scene | seed | T MAE start / trained (true depth) | optical depth model / true, start -> trained, "
-        "per true-T bin |"
+        "| scene | seed | T MAE start / trained (true depth) | light model / true, start -> trained | "
+        "optical depth model / true, start -> trained, per true-T bin |"
     )
-    lines = [head, "|---|---|---|---|"]
+    lines = [head, "|---|---|---|---|---|"]
     for r in rows:
         cells = "; ".join(
             f"{b['true_t'][0]:.1f}-{b['true_t'][1]:.1f} ({100 * b['share']:.0f} %): "
             f"{b['ratio_start']:.2f} -> {b['ratio_trained']:.2f}"
             for b in r["bins"]
         )
+        light = "-" if r.get("light_ratio_start") is None else (
+            f"{r['light_ratio_start']:.2f} -> {r['light_ratio_trained']:.2f}"
+        )  # fmt: skip
         lines.append(
-            f"| {r['scene']} | {r['seed']} | {r['t_mae_start']:.3f} / {r['t_mae_trained']:.3f} | {cells} |"
+            f"| {r['scene']} | {r['seed']} | {r['t_mae_start']:.3f} / {r['t_mae_trained']:.3f} | {light} | {cells} |"
         )
     return "\n".join(lines) + "\n"
 

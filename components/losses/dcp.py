@@ -93,20 +93,26 @@ def estimate_dcp(
     t0: float = 0.05,
     guided_radius: int | None = None,
     guided_eps: float = 1e-3,
+    airlight: np.ndarray | None = None,
 ) -> DCPResult:
     """Transmittance and airlight of a hazy RGB image [H, W, 3] (float in [0, 1] or uint8).
 
     ``omega`` < 1 keeps a little haze so far objects still look far (He et al.); ``t0`` bounds t
     away from 0 (sky and airlight-coloured pixels, where the prior fails, end up there). The coarse
     patch-wise t is refined by a guided filter on the grey image (``guided_radius`` default: 4
-    patches), which restores object edges that the min filter blurred.
+    patches), which restores object edges that the min filter blurred. ``airlight`` [3]: a known
+    haze light, used instead of the brightest dark-channel pixels (which under-estimate it where no
+    pixel is opaque haze).
     """
     img = _as_float(image)  # [H, W, 3]
     h, w = img.shape[:2]
     patch = default_patch(h, w) if patch is None else int(patch)
     radius = 4 * patch if guided_radius is None else int(guided_radius)
     dark = dark_channel(img, patch)  # [H, W]
-    airlight = estimate_airlight(img, dark)  # [3]
+    if airlight is None:
+        airlight = estimate_airlight(img, dark)  # [3]
+    else:
+        airlight = np.asarray(airlight, dtype=np.float32).reshape(3)
     t = 1.0 - omega * dark_channel(img / np.maximum(airlight, 1e-3), patch)  # [H, W]
     if radius > 0:
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)  # [H, W]

@@ -121,6 +121,12 @@ class GaussianPipelineConfig(PipelineConfig):
     init_medium: bool = True
     """Start the medium from the dark channel: airlight from the brightest dark-channel pixels,
     extinction from -ln T_dcp at the seed points' distances (else the medium config's values)."""
+    airlight: tuple[float, float, float] | None = None
+    """The haze light (RGB in (0, 1]) where it is known (a grey card or a sky patch seen through
+    opaque haze): replaces the dark channel's airlight in the medium's start, in every view's
+    dark-channel T, and as the light anchor's target. None: estimated per view from the brightest
+    dark-channel pixels, which is too dim where no pixel is opaque haze (indoors), and then the
+    medium is too dense (docs/results/medium_recovery.md, session 14)."""
     dehaze_seed_colors: bool = True
     """Take the estimated haze out of the seed points' colours before initialising the Gaussians."""
     input_dehaze: Literal["none", "dcp"] = "none"
@@ -133,6 +139,11 @@ class GaussianPipelineConfig(PipelineConfig):
             raise ConfigError(f"--pipeline.background must be three values in [0, 1], got {self.background}")
         if not 0.0 < self.t_min <= 1.0:
             raise ConfigError(f"--pipeline.t-min must be in (0, 1], got {self.t_min}")
+        if self.airlight is not None and not all(0.0 < a <= 1.0 for a in self.airlight):
+            raise ConfigError(
+                f"--pipeline.airlight must be three values in (0, 1] (linear RGB of the haze light), "
+                f"got {self.airlight}"
+            )
         for sub in (self.loss, self.composite, self.medium, self.densify, self.rasterizer):
             sub.check_values()
         if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
@@ -145,7 +156,7 @@ class GaussianPipelineConfig(PipelineConfig):
         if self.medium.backend != "auto":
             return self, []
         train = datamanager.train_indices
-        dcp = dcp_per_view(datamanager, train, keep=True)  # setup() takes them for the priors
+        dcp = dcp_per_view(datamanager, train, keep=True, airlight=self.airlight)  # for setup()
         probe = probe_haze(datamanager, train, datamanager.scene.points, seed, dcp)
         resolved = replace(self, medium=replace(self.medium, backend=probe.backend))
         return resolved, [Decision(probe.message(), {"haze_probe": probe.to_dict()})]
@@ -216,7 +227,11 @@ class GaussianPipeline(Pipeline):
         self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
-        dcp = dcp_per_view(datamanager, datamanager.train_indices) if plan.needs_dcp else {}
+        dcp = (
+            dcp_per_view(datamanager, datamanager.train_indices, airlight=config.airlight)
+            if plan.needs_dcp
+            else {}
+        )
         self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
         colors = self._initialize_medium(dcp, plan)
         self.model = config.model.setup(points=scene.points, colors=colors, scene_extent=self.scene_extent)

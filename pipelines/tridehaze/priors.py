@@ -51,21 +51,29 @@ class MediumEstimate:
     beta: float | None  # 1 / scene unit; None when there are no seed points to measure it with
 
 
-_HANDED_OVER: weakref.WeakKeyDictionary[DataManager, tuple[tuple[int, ...], dict[int, DCPResult]]] = (
+_HandOverKey = tuple[tuple[int, ...], tuple[float, ...] | None]
+_HANDED_OVER: weakref.WeakKeyDictionary[DataManager, tuple[_HandOverKey, dict[int, DCPResult]]] = (
     weakref.WeakKeyDictionary()
 )
 """Dark channels kept by a ``keep=True`` call for the next call on the same data manager and views."""
 
 
-def dcp_per_view(dm: DataManager, indices: list[int], keep: bool = False) -> dict[int, DCPResult]:
+def dcp_per_view(
+    dm: DataManager,
+    indices: list[int],
+    keep: bool = False,
+    airlight: tuple[float, float, float] | None = None,
+) -> dict[int, DCPResult]:
     """The dark-channel estimate of each view. ``keep``: hold the result for the next call on the
     same views, which takes it instead of recomputing (the haze probe in ``resolve()`` hands its
-    dark channels to the pipeline's setup; held only until then, they cost no memory in training)."""
-    key = tuple(indices)
+    dark channels to the pipeline's setup; held only until then, they cost no memory in training).
+    ``airlight``: a known haze light for every view instead of each view's dark-channel estimate."""
+    key = (tuple(indices), None if airlight is None else tuple(float(a) for a in airlight))
     held = _HANDED_OVER.pop(dm, None)
     if held is not None and held[0] == key:
         return held[1]
-    out = {i: estimate_dcp(dm.image(i).cpu().numpy()) for i in indices}
+    given = None if airlight is None else np.asarray(airlight, dtype=np.float32)
+    out = {i: estimate_dcp(dm.image(i).cpu().numpy(), airlight=given) for i in indices}
     if keep:
         _HANDED_OVER[dm] = (key, out)
     return out

@@ -101,6 +101,8 @@ def test_unknown_method_and_bad_flag_exit_2():
         (["--threads", "0"], "--threads"),
         (["--device", "tpu"], "--device"),
         (["--pipeline.background", "2", "0", "0"], "--pipeline.background"),
+        (["--pipeline.airlight", "0", "0.5", "0.5"], "--pipeline.airlight"),
+        (["--pipeline.airlight", "0.7", "1.2", "0.7"], "--pipeline.airlight"),
         (["--pipeline.loss.lambda-ssim", "1.5"], "lambda-ssim"),
     ],
 )

@@ -179,3 +179,22 @@ def test_dark_channel_without_opencv_contrib(monkeypatch):
     out = estimate_dcp(img)
     np.testing.assert_allclose(out.transmittance, ref.transmittance, rtol=0, atol=2e-5)
     np.testing.assert_array_equal(out.airlight, ref.airlight)
+
+
+def test_a_known_airlight_replaces_the_estimate_where_no_pixel_is_opaque():
+    """Indoors no pixel is opaque haze, so the brightest dark-channel pixels are surfaces seen
+    through part of the haze: their colour is dimmer than the light, and t comes out too low. With
+    the light given, t is the prior's own (within the guided filter's smoothing)."""
+    j = clean_texture(seed=3)
+    t = np.linspace(0.7, 0.35, H, dtype=np.float32)[:, None].repeat(W, axis=1)  # [H, W], never opaque
+    i = (j * t[..., None] + AIRLIGHT * (1 - t[..., None])).astype(np.float32)
+    estimated = estimate_dcp(i, omega=1.0)
+    given = estimate_dcp(i, omega=1.0, airlight=AIRLIGHT)
+    np.testing.assert_array_equal(given.airlight, AIRLIGHT)
+    assert given.airlight.dtype == np.float32
+    assert (estimated.airlight < AIRLIGHT - 0.05).all()  # the estimate is too dim here
+    err_estimated = np.abs(estimated.transmittance - t).mean()
+    err_given = np.abs(given.transmittance - t).mean()
+    assert err_given < 0.03 < err_estimated
+    # the raw dark channel is the input's, whichever light is used
+    np.testing.assert_array_equal(given.dark, estimated.dark)

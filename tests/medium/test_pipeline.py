@@ -212,3 +212,31 @@ def test_metric_depth_term_only_against_the_sfm_prior(
     if applied:
         value = float(result.metrics["depth_log_l1"])
         assert 0.0 < value < 5.0  # a relative error, and the seed Gaussians are not at every point's depth
+
+
+def test_a_known_airlight_starts_the_medium_and_sets_the_priors(hazy_scene, tmp_path, device):
+    """``--pipeline.airlight``: the medium starts at that light, each view's dark-channel T is
+    computed with it, and the light anchor's target is it (the view priors' airlight)."""
+    from rich.console import Console
+
+    from components.losses.dcp import estimate_dcp
+
+    light = (0.61, 0.66, 0.72)
+    runs = {}
+    for name, extra in (("estimated", ()), ("given", ("--pipeline.airlight", *map(str, light)))):
+        cfg = _config(hazy_scene, tmp_path / name, device, *extra)
+        trainer = Trainer(cfg, console=Console(quiet=True))
+        trainer.setup()
+        runs[name] = trainer.pipeline
+    pipe = runs["given"]
+    assert pipe.init_info["init_airlight"] == str(list(light))
+    expect = torch.tensor(light)
+    for i, prior in pipe.priors.items():
+        torch.testing.assert_close(prior.airlight.cpu(), expect)
+        image = pipe.datamanager.image(i).cpu().numpy()
+        ref = estimate_dcp(image, airlight=expect.numpy()).transmittance
+        torch.testing.assert_close(prior.t_dcp.cpu(), torch.from_numpy(ref))
+    other = runs["estimated"]
+    assert other.init_info["init_airlight"] != pipe.init_info["init_airlight"]
+    i = next(iter(pipe.priors))
+    assert not torch.equal(other.priors[i].t_dcp, pipe.priors[i].t_dcp)
