@@ -55,7 +55,8 @@ def _light_sums(scattering: Tensor, transmittance: Tensor, mask: Tensor) -> Tens
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
-    est = estimate_medium(dm, dcp_per_view(dm, dm.train_indices), dm.scene.points)
+    airlight = run.config.pipeline.airlight  # the start the run had, where a known light was given
+    est = estimate_medium(dm, dcp_per_view(dm, dm.train_indices, airlight=airlight), dm.scene.points)
     if est.beta is None:
         raise SystemExit(f"{config}: the scene has no seed points, so there is no extinction start")
     true_od, start_od, trained_od = [], [], []
