@@ -134,14 +134,27 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _mean_ratio(r: dict) -> float:
+    """The trained optical-depth ratio over the run's bins, share-weighted in log."""
+    w = np.array([b["share"] for b in r["bins"]])
+    v = np.log([b["ratio_trained"] for b in r["bins"]])
+    return float(np.exp((w * v).sum() / w.sum()))
+
+
 def plot(rows: list[dict], path: Path) -> None:
-    """Optical-depth ratio (model / true) at the start (hollow) and trained (filled), per bin and run."""
+    """Left: optical-depth ratio (model / true) at the start (hollow) and trained (filled), per bin
+    and run. Right: trained light ratio against trained optical-depth ratio, one point per run."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(max(6, 0.7 * len(rows)), 4))
+    fig, (ax, lx) = plt.subplots(
+        1,
+        2,
+        figsize=(max(6, 0.7 * len(rows)) + 4, 4),
+        gridspec_kw={"width_ratios": [max(6, 0.7 * len(rows)), 4]},
+    )
     colours = plt.cm.viridis(np.linspace(0, 0.9, len(BINS)))
     for k, (lo, hi) in enumerate(BINS):
         label: str | None = f"true T {lo:.1f}-{hi:.1f}"  # on the bin's first point only
@@ -162,6 +175,17 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_ylabel("optical depth, model / true")
     ax.set_title("hollow: the dark-channel start, filled: trained (both to the true depth)", fontsize=8)
     ax.legend(fontsize=7)
+    lit = [r for r in rows if r.get("light_ratio_trained") is not None and r["bins"]]
+    for r in lit:
+        x, y = r["light_ratio_trained"], _mean_ratio(r)
+        lx.plot(x, y, "o", color="tab:blue")
+        lx.annotate(r["scene"], (x, y), fontsize=5, xytext=(2, 2), textcoords="offset points")
+    lx.axhline(1.0, color="k", lw=0.8)
+    lx.axvline(1.0, color="k", lw=0.8)
+    lx.set_yscale("log")
+    lx.set_xlabel("light, model / true (trained)")
+    lx.set_ylabel("optical depth, model / true (trained)")
+    lx.set_title("a light too dim needs more haze", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

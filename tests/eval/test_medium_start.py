@@ -68,3 +68,4 @@ def test_light_ratio_is_one_for_a_start_at_the_true_light(tmp_path):
     assert 0.2 < row["light_ratio_trained"] < 5.0
     assert max(abs(a - b) for a, b in zip(row["light_start"], light, strict=True)) < 1e-5
     assert "light model / true" in out.with_suffix(".md").read_text()
+    assert out.with_suffix(".png").stat().st_size > 0
