@@ -223,8 +223,10 @@ def test_resolve_returns_a_new_config_and_leaves_the_preset_alone(scenes):
     assert again is resolved and none == []
 
 
-def test_the_probes_dark_channels_are_reused_by_setup(scenes, monkeypatch):
-    """resolve() + setup() estimate each training view's dark channel once, not twice."""
+@pytest.mark.parametrize("light", [(), ("--pipeline.airlight", "0.7", "0.72", "0.75")])
+def test_the_probes_dark_channels_are_reused_by_setup(scenes, monkeypatch, light):
+    """resolve() + setup() estimate each training view's dark channel once, not twice (also with a
+    known light, which both calls must use)."""
     import torch
 
     from components.data.loader import load_scene
@@ -232,12 +234,15 @@ def test_the_probes_dark_channels_are_reused_by_setup(scenes, monkeypatch):
     from pipelines.tridehaze import priors
 
     cfg = parse_args(["tri-dehaze-fast", "--data", str(scenes["courtyard", "patchy"]),
-                      "--pipeline.rasterizer.backend", "torch"])  # fmt: skip
+                      "--pipeline.rasterizer.backend", "torch", *light])  # fmt: skip
     dm = DataManager(load_scene(cfg.dataset), torch.device("cpu"), seed=0)
     calls = []
     real = priors.estimate_dcp
-    monkeypatch.setattr(priors, "estimate_dcp", lambda img: (calls.append(1), real(img))[1])
+    monkeypatch.setattr(priors, "estimate_dcp", lambda img, **kw: (calls.append(1), real(img, **kw))[1])
     resolved, _ = cfg.pipeline.resolve(dm, seed=0)
-    resolved.setup(dm, seed=0, max_steps=10)
+    pipe = resolved.setup(dm, seed=0, max_steps=10)
     assert len(calls) == len(dm.train_indices)
+    if light:
+        given = torch.tensor([float(v) for v in light[1:]])
+        assert pipe.priors and all(torch.allclose(p.airlight.cpu(), given) for p in pipe.priors.values())
     assert dm not in priors._HANDED_OVER  # taken by setup, not held through training
