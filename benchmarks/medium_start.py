@@ -69,12 +69,13 @@ def diagnose(config: Path) -> dict:
         true_od.append(-true_t.clamp(1e-4, 0.9999).log().flatten())
         path = z[..., 0] * pixel_path_lengths(cam, size[0], size[1], z.device, z.dtype)  # [H, W]
         start_od.append((est.beta * path).flatten())
-        trained_od.append(-med.pixel_transmittance().clamp_min(1e-4).log().flatten())
+        model_t = med.pixel_transmittance()  # [H, W, 1]
+        trained_od.append(-model_t.clamp_min(1e-4).log().flatten())
         true_s = reference_map(dm, REFERENCE_S_KEY, view.index, size)  # [H, W, 3]
         if true_s is not None:
             m = true_t[..., 0] < LIGHT_T_MAX  # [H, W]
             light_true += _light_sums(true_s, true_t[..., 0], m)
-            light_model += _light_sums(med.scattering, med.pixel_transmittance()[..., 0], m)
+            light_model += _light_sums(med.scattering, model_t[..., 0], m)
     if not true_od:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
     od, od0, od1 = (torch.cat(v).cpu().numpy() for v in (true_od, start_od, trained_od))

@@ -63,7 +63,7 @@ def test_light_ratio_is_one_for_a_start_at_the_true_light(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     data = json.loads(out.with_suffix(".json").read_text())
-    row = next(r for r in (data if isinstance(data, list) else data["rows"]) if "scene" in r)
+    row = next(r for r in data if "scene" in r)
     assert abs(row["light_ratio_start"] - 1.0) < 1e-3
     assert 0.2 < row["light_ratio_trained"] < 5.0
     assert max(abs(a - b) for a, b in zip(row["light_start"], light, strict=True)) < 1e-5
