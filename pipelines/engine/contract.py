@@ -115,6 +115,13 @@ class Pipeline(nn.Module, ABC):
         """The medium, for export (None: the method has none)."""
         return None
 
+    def medium_at_depth(self, camera: Cameras, depth: Tensor) -> tuple[Tensor, Tensor] | None:
+        """T [H, W, 1] and S [H, W, 3] of the method's medium marched from ``camera`` to the given
+        z-depth [H, W, 1] (the run's normalised units) instead of its own rendered depth; None: the
+        method has no medium. The evaluation marches it to the dataset's true depth, so that the
+        medium's own error is measured apart from the error of the depth it is marched to."""
+        return None
+
     def pop_decisions(self) -> list[str | Decision]:
         """Choices the pipeline made on its own since the last call (a haze probe's verdict,
         densification that stopped growing), each one line; the trainer prints and logs them."""

@@ -36,6 +36,7 @@ from pipelines.engine.datamanager import DataManager
 from pipelines.engine.image_baselines import BASELINES, baseline_images
 from pipelines.engine.medium_recovery import (
     OBSERVABLE_T,
+    REFERENCE_DEPTH_KEY,
     REFERENCE_S_KEY,
     REFERENCE_T_KEY,
     MediumAccumulator,
@@ -171,8 +172,9 @@ def evaluate(
         if observable is not None:
             row["observable"] = observable
         if true_t is not None:
+            at_depth = _medium_at_true_depth(pipeline, dm, idx, tuple(true_t.shape[:2]))
             row["medium"] = recovery.add(
-                out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref
+                out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref, at_depth
             )
         if hazy_in is not None:
             row["reconstruction"] = _scores(out["hazy"], hazy_in, lpips_fn)
@@ -223,6 +225,17 @@ def _truth(
     if not medium:
         return observable, None, None
     return observable, true_t, reference_map(dm, REFERENCE_S_KEY, idx, size)
+
+
+def _medium_at_true_depth(
+    pipeline: Pipeline, dm: DataManager, idx: int, size: tuple[int, int]
+) -> tuple[Tensor, Tensor] | None:
+    """The model's T [H, W, 1] and S [H, W, 3] marched to view ``idx``'s true depth (the dataset's
+    map in metres, taken into the run's normalised frame); None without a depth map or a medium."""
+    z = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # [H, W, 1] metres
+    if z is None:
+        return None
+    return pipeline.medium_at_depth(dm.camera(idx), z * dm.scene.transform.scale)
 
 
 def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:

@@ -8,6 +8,10 @@ written by ``td-synth``) this protocol reports, per view and as means over views
 - ``t_mae`` / ``s_mae``: mean absolute error of T (and of S, averaged over RGB);
 - ``t_mae_by_true_t``: T's error over the pixels of each visibility bin of the *true* T (the same
   pixels for every method);
+- ``t_mae_true_depth`` / ``s_mae_true_depth``: the same errors with the model's medium marched to
+  the dataset's *true* depth (``gt_depth_file_path``) instead of its own rendered depth, so that
+  the medium's error is told apart from the error of the depth it is marched to (a short rendered
+  depth alone gives too little haze with a perfect medium);
 - ``inverted_psnr``: PSNR against the clean reference of J = (I - S) / T inverted from the hazy
   input with the model's own T and S (how good the medium alone is as a dehazer), and
   ``true_inverted_psnr``, the same with the true maps: the ceiling the data allow.
@@ -93,8 +97,10 @@ class MediumAccumulator:
         true_s: Tensor | None,
         hazy: Tensor | None,
         reference: Tensor | None,
+        at_true_depth: tuple[Tensor, Tensor] | None = None,
     ) -> dict[str, Any]:
-        """One view (T [H, W, 1], S / images [H, W, 3]); returns its own numbers."""
+        """One view (T [H, W, 1], S / images [H, W, 3]); ``at_true_depth``: the model's T and S
+        marched to the true depth, where the dataset has it. Returns the view's own numbers."""
         t_err = (model_t - true_t).abs()[..., 0]  # [H, W]
         row: dict[str, Any] = {"t_mae": float(t_err.mean()), "s_mae": None}
         for name, lo, hi in T_BINS:
@@ -103,6 +109,10 @@ class MediumAccumulator:
             self.bin_pixels[name] += int(mask.sum())
         if true_s is not None:
             row["s_mae"] = float((model_s - true_s).abs().mean())
+        if at_true_depth is not None:
+            t_d, s_d = at_true_depth  # [H, W, 1], [H, W, 3]
+            row["t_mae_true_depth"] = float((t_d - true_t).abs().mean())
+            row["s_mae_true_depth"] = float((s_d - true_s).abs().mean()) if true_s is not None else None
         if hazy is not None and reference is not None:
             row["inverted_psnr"] = float(psnr(invert(hazy, model_t, model_s), reference))
             if true_s is not None:
@@ -114,7 +124,14 @@ class MediumAccumulator:
         if not self.rows:
             return None
         out: dict[str, Any] = {"views": len(self.rows)}
-        for key in ("t_mae", "s_mae", "inverted_psnr", "true_inverted_psnr"):
+        for key in (
+            "t_mae",
+            "s_mae",
+            "t_mae_true_depth",
+            "s_mae_true_depth",
+            "inverted_psnr",
+            "true_inverted_psnr",
+        ):
             vals = [r[key] for r in self.rows if r.get(key) is not None]
             out[key] = sum(vals) / len(vals) if vals else None
         out["t_mae_by_true_t"] = {

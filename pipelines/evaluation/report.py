@@ -98,9 +98,11 @@ def _medium_lines(med: dict[str, Any] | None, per_view: list[dict[str, Any]]) ->
         "",
         "Medium recovery against the dataset's true maps (J inverted from the hazy input with T and S):",
         "",
-        "| T MAE | S MAE | T MAE high / mid / low true T | J PSNR, model T and S | J PSNR, true T and S |",
-        "|---|---|---|---|---|",
+        "| T MAE | S MAE | T / S MAE, marched to the true depth | T MAE high / mid / low true T "
+        "| J PSNR, model T and S | J PSNR, true T and S |",
+        "|---|---|---|---|---|---|",
         f"| {_fmt(med['t_mae'])} | {_fmt(med['s_mae'])} | "
+        f"{_fmt(med.get('t_mae_true_depth'))} / {_fmt(med.get('s_mae_true_depth'))} | "
         f"{' / '.join(_fmt(by_bin[name]) for name, _, _ in T_BINS)} | {_fmt(med['inverted_psnr'], 2)} | "
         f"{_fmt(med['true_inverted_psnr'], 2)} |",
         "",

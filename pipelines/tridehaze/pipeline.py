@@ -458,6 +458,15 @@ class GaussianPipeline(Pipeline):
     def output_names(self) -> list[str]:
         return ["clean", "hazy", "transmittance", "scattering", "depth", "alpha"]
 
+    @torch.no_grad()
+    def medium_at_depth(self, camera: Cameras, depth: Tensor) -> tuple[Tensor, Tensor] | None:
+        if not self.medium.has_medium:
+            return None
+        med = self.medium.render_view(
+            self.compositor, camera, depth, torch.ones_like(depth), self.model, self.rasterizer
+        )
+        return med.pixel_transmittance(), med.scattering.clamp(0, 1)
+
     @property
     def composites_medium(self) -> bool:
         return self.medium.has_medium

@@ -47,6 +47,7 @@ def test_td_eval_writes_json_markdown_and_side_by_side(tri_run, need_lpips, tmp_
     med = report["medium"]  # the generated scene carries its true T and S
     assert med["views"] == 2 and 0 <= med["t_mae"] <= 1 and 0 <= med["s_mae"] <= 1
     assert med["true_inverted_psnr"] > 30 and "Medium recovery" in md and "| T MAE |" in md
+    assert 0 <= med["t_mae_true_depth"] <= 1 and 0 <= med["s_mae_true_depth"] <= 1  # tri-dehaze marches
     dcp = report["baselines"]["dcp_2d"]  # the 2D baseline on the same views, in the JSON and the table
     assert (
         dcp["views"] == 2

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from components.data.config import DataConfig
 from components.data.images import read_depth
@@ -18,6 +18,7 @@ from pipelines.engine.datamanager import DataManager
 from pipelines.engine.evaluate import evaluate, evaluate_split
 from pipelines.engine.medium_recovery import (
     OBSERVABLE_T,
+    REFERENCE_DEPTH_KEY,
     REFERENCE_S_KEY,
     REFERENCE_T_KEY,
     T_BINS,
@@ -86,6 +87,22 @@ class OraclePipeline(ScriptedPipeline):
         out["transmittance"] = reference_map(self.dm, REFERENCE_T_KEY, idx, size) - self.t_shift
         out["scattering"] = reference_map(self.dm, REFERENCE_S_KEY, idx, size) + self.s_shift
         return out
+
+
+class DepthMarchedPipeline(OraclePipeline):
+    """A homogeneous medium of known extinction and light marched to whatever depth it is given;
+    records the depths the evaluation asks for."""
+
+    BETA, LIGHT = 0.3, 0.7
+
+    def __init__(self, dm: DataManager) -> None:
+        super().__init__(dm)
+        self.asked: list[Tensor] = []
+
+    def medium_at_depth(self, camera, depth):
+        self.asked.append(depth)
+        T = torch.exp(-self.BETA * depth)  # [H, W, 1]
+        return T, self.LIGHT * (1.0 - T).expand(*T.shape[:2], 3)
 
 
 @pytest.fixture(scope="module")
@@ -168,6 +185,38 @@ def test_medium_recovery_measures_known_errors(dm):
     assert med["inverted_psnr"] < med["true_inverted_psnr"]
     assert set(report["per_view"][0]["medium"]) >= {"t_mae", "s_mae", "inverted_psnr", "true_inverted_psnr"}
     assert [b[0] for b in T_BINS] == list(med["t_mae_by_true_t"])
+
+
+def test_medium_marched_to_the_true_depth_is_scored_apart(dm):
+    """The medium is marched to the dataset's true depth in the run's frame, and scored there."""
+    pipe = DepthMarchedPipeline(dm)
+    report = evaluate(pipe, dm, "test")
+    med = report["medium"]
+    size = tuple(dm.clean_image(dm.test_indices[0]).shape[:2])
+    t_err, s_err = [], []
+    for k, idx in enumerate(dm.test_indices):
+        z = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size) * dm.scene.transform.scale  # [H, W, 1]
+        assert torch.equal(pipe.asked[k], z)
+        T = torch.exp(-pipe.BETA * z)
+        true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)
+        true_s = reference_map(dm, REFERENCE_S_KEY, idx, size)
+        t_err.append(float((T - true_t).abs().mean()))
+        s_err.append(float((pipe.LIGHT * (1 - T) - true_s).abs().mean()))
+        row = report["per_view"][k]["medium"]
+        assert row["t_mae_true_depth"] == pytest.approx(t_err[-1], abs=1e-6)
+    assert (
+        med["t_mae_true_depth"] == pytest.approx(np.mean(t_err), abs=1e-6) and med["t_mae_true_depth"] > 0.01
+    )
+    assert med["s_mae_true_depth"] == pytest.approx(np.mean(s_err), abs=1e-6)
+    assert med["t_mae"] == 0.0  # the rendered maps are the truth; only the marched ones are off
+
+
+def test_no_true_depth_or_no_march_means_no_true_depth_numbers(dm):
+    assert evaluate(OraclePipeline(dm), dm, "test")["medium"]["t_mae_true_depth"] is None  # base: no march
+    bare = DataManager(load_scene(DataConfig(data=dm.scene.root)), torch.device("cpu"))
+    bare.scene.extra_paths.pop(REFERENCE_DEPTH_KEY)
+    med = evaluate(DepthMarchedPipeline(bare), bare, "test")["medium"]
+    assert med["t_mae"] == 0.0 and med["t_mae_true_depth"] is None and med["s_mae_true_depth"] is None
 
 
 def test_no_medium_or_no_true_maps_means_no_medium_numbers(dm):

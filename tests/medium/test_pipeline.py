@@ -101,6 +101,18 @@ def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
     assert float(T.min()) > 0 and float(T.max()) <= 1
     expect = (out["clean"] * T + out["scattering"]).clamp(0, 1)
     torch.testing.assert_close(out["hazy"], expect, atol=1e-5, rtol=0)
+    # the medium marched to a given depth (the evaluation's true-depth protocol): none at the camera,
+    # less light through farther planes
+    at = trainer.pipeline.medium_at_depth
+    near = torch.full_like(T, 1e-6)
+    plane = torch.full_like(T, float(out["depth"].median()))
+    t0, s0 = at(cam, near)
+    t1, s1 = at(cam, plane)
+    t2, s2 = at(cam, 2 * plane)
+    assert tuple(t1.shape) == (H, W, 1) and tuple(s1.shape) == (H, W, 3)
+    torch.testing.assert_close(t0, torch.ones_like(t0), atol=1e-4, rtol=0)
+    assert float(s0.abs().max()) < 1e-4
+    assert bool((t2 <= t1 + 1e-6).all()) and float((t1 - t2).mean()) > 1e-4 and float(t1.mean()) < 1
 
 
 def test_no_medium_is_plain_gaussians(hazy_scene, tmp_path, device):
@@ -109,6 +121,7 @@ def test_no_medium_is_plain_gaussians(hazy_scene, tmp_path, device):
     assert torch.equal(out["hazy"], out["clean"])
     assert torch.equal(out["transmittance"], torch.ones_like(out["transmittance"]))
     assert not list(trainer.pipeline.medium.parameters())
+    assert trainer.pipeline.medium_at_depth(trainer.datamanager.camera(0), out["depth"]) is None
 
 
 def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path, device):
