@@ -28,6 +28,7 @@ METRICS: tuple[tuple[str, tuple[str, ...], int], ...] = (
     ("ssim", ("restoration", "ssim"), +1),
     ("t_mae", ("medium", "t_mae"), -1),
     ("s_mae", ("medium", "s_mae"), -1),
+    ("t_mae_true_z", ("medium", "t_mae_true_depth"), -1),
     ("recon", ("reconstruction", "psnr"), +1),
     ("train_s", ("train_seconds",), 0),
 )
