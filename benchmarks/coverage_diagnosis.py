@@ -31,7 +31,7 @@ if str(REPO) not in sys.path:
 
 from bench_output import diagnose_runs_main  # noqa: E402
 
-from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
+from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_depth, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
 QUANTILES = (0.05, 0.25, 0.5)
@@ -49,12 +49,12 @@ def diagnose(config: Path) -> dict:
         alphas.append(alpha.flatten())
         size = tuple(alpha.shape[:2])
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # type: ignore[arg-type]
-        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # type: ignore[arg-type]
+        true_z = reference_depth(dm, idx, size)  # type: ignore[arg-type]
         if true_t is None or not pipe.composites_medium:
             continue
         ends = {"rendered": (depth, alpha), "opaque": (depth, torch.ones_like(alpha))}
-        if true_d is not None:
-            ends["true"] = (true_d * dm.scene.transform.scale, torch.ones_like(alpha))
+        if true_z is not None:
+            ends["true"] = (true_z, torch.ones_like(alpha))
         for name, (d, a) in ends.items():
             med = pipe.medium_field().render_view(
                 pipe.compositor, cam, d, a, pipe.scene_gaussians(), pipe.rasterizer

@@ -63,19 +63,19 @@ def diagnose(config: Path) -> dict:
     light_true, light_model = torch.zeros(4), torch.zeros(4)
     for view in reference_views(dm):
         cam, size, true_t, z = view.camera, (view.height, view.width), view.true_t, view.true_z  # [H, W, 1]
-        med = pipe.medium_field().render_view(
-            pipe.compositor, cam, z, torch.ones_like(z), pipe.scene_gaussians(), pipe.rasterizer
-        )
+        marched = pipe.medium_at_depth(cam, z)
+        if marched is None:
+            raise SystemExit(f"{config}: the run has no medium to compare with the truth")
+        model_t, model_s = marched  # [H, W, 1], [H, W, 3]
         true_od.append(-true_t.clamp(1e-4, 0.9999).log().flatten())
         path = z[..., 0] * pixel_path_lengths(cam, size[0], size[1], z.device, z.dtype)  # [H, W]
         start_od.append((est.beta * path).flatten())
-        model_t = med.pixel_transmittance()  # [H, W, 1]
         trained_od.append(-model_t.clamp_min(1e-4).log().flatten())
         true_s = reference_map(dm, REFERENCE_S_KEY, view.index, size)  # [H, W, 3]
         if true_s is not None:
             m = true_t[..., 0] < LIGHT_T_MAX  # [H, W]
             light_true += _light_sums(true_s, true_t[..., 0], m)
-            light_model += _light_sums(med.scattering, model_t[..., 0], m)
+            light_model += _light_sums(model_s, model_t[..., 0], m)
     if not true_od:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
     od, od0, od1 = (torch.cat(v).cpu().numpy() for v in (true_od, start_od, trained_od))

@@ -10,7 +10,7 @@ from torch import Tensor
 
 from components.data.cameras import Cameras
 from pipelines.engine.datamanager import DataManager
-from pipelines.engine.medium_recovery import REFERENCE_DEPTH_KEY, REFERENCE_T_KEY, reference_map
+from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_depth, reference_map
 
 TRUE_T_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.7), (0.7, 1.0))
 """True-T bins [lo, hi) of the diagnoses' tables (the last one includes 1)."""
@@ -32,7 +32,7 @@ def reference_views(dm: DataManager) -> Iterator[ReferenceView]:
         cam = dm.camera(idx)
         size = (int(cam.height[0]), int(cam.width[0]))
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)
-        true_d = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # metres
-        if true_t is None or true_d is None:
+        true_z = reference_depth(dm, idx, size)
+        if true_t is None or true_z is None:
             continue
-        yield ReferenceView(idx, cam, size[0], size[1], true_t, true_d * dm.scene.transform.scale)
+        yield ReferenceView(idx, cam, size[0], size[1], true_t, true_z)

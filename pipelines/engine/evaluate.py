@@ -36,11 +36,11 @@ from pipelines.engine.datamanager import DataManager
 from pipelines.engine.image_baselines import BASELINES, baseline_images
 from pipelines.engine.medium_recovery import (
     OBSERVABLE_T,
-    REFERENCE_DEPTH_KEY,
     REFERENCE_S_KEY,
     REFERENCE_T_KEY,
     MediumAccumulator,
     observable_scores,
+    reference_depth,
     reference_map,
 )
 from pipelines.engine.metrics import psnr, ssim, ssim_map
@@ -156,7 +156,8 @@ def evaluate(
     bin_source: str | None = None
     per_view: list[dict[str, Any]] = []
     for idx in indices:
-        out = pipeline.render(dm.camera(idx))
+        camera = dm.camera(idx)
+        out = pipeline.render(camera)
         clean_ref = dm.clean_image(idx)
         hazy_in = dm.hazy_image(idx)
         row: dict[str, Any] = {"name": names[idx]}
@@ -172,7 +173,8 @@ def evaluate(
         if observable is not None:
             row["observable"] = observable
         if true_t is not None:
-            at_depth = _medium_at_true_depth(pipeline, dm, idx, tuple(true_t.shape[:2]))
+            true_z = reference_depth(dm, idx, tuple(true_t.shape[:2]))  # type: ignore[arg-type]
+            at_depth = None if true_z is None else pipeline.medium_at_depth(camera, true_z)
             row["medium"] = recovery.add(
                 out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref, at_depth
             )
@@ -225,17 +227,6 @@ def _truth(
     if not medium:
         return observable, None, None
     return observable, true_t, reference_map(dm, REFERENCE_S_KEY, idx, size)
-
-
-def _medium_at_true_depth(
-    pipeline: Pipeline, dm: DataManager, idx: int, size: tuple[int, int]
-) -> tuple[Tensor, Tensor] | None:
-    """The model's T [H, W, 1] and S [H, W, 3] marched to view ``idx``'s true depth (the dataset's
-    map in metres, taken into the run's normalised frame); None without a depth map or a medium."""
-    z = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # [H, W, 1] metres
-    if z is None:
-        return None
-    return pipeline.medium_at_depth(dm.camera(idx), z * dm.scene.transform.scale)
 
 
 def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:

@@ -64,6 +64,13 @@ def reference_map(dm: DataManager, key: str, idx: int, size: tuple[int, int]) ->
     return (t[..., None] if t.dim() == 2 else t).to(dm.device)
 
 
+def reference_depth(dm: DataManager, idx: int, size: tuple[int, int]) -> Tensor | None:
+    """View ``idx``'s true camera z-depth [H, W, 1] in the run's normalised frame (the dataset's map
+    is in metres), or None where the dataset has none."""
+    z = reference_map(dm, REFERENCE_DEPTH_KEY, idx, size)  # [H, W, 1] metres
+    return None if z is None else z * dm.scene.transform.scale
+
+
 def invert(hazy: Tensor, transmittance: Tensor, scattering: Tensor) -> Tensor:
     """J = (I - S) / max(T, floor), clamped to [0, 1]; hazy/scattering [H, W, 3], T [H, W, 1]."""
     return ((hazy - scattering) / transmittance.clamp_min(INVERT_T_FLOOR)).clamp(0.0, 1.0)
