@@ -31,6 +31,7 @@ from typing import Any, Literal
 import torch
 from torch import Tensor
 
+from components.data.cameras import Cameras
 from pipelines.engine.contract import Pipeline
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.image_baselines import BASELINES, baseline_images
@@ -173,8 +174,7 @@ def evaluate(
         if observable is not None:
             row["observable"] = observable
         if true_t is not None:
-            true_z = reference_depth(dm, idx, tuple(true_t.shape[:2]))  # type: ignore[arg-type]
-            at_depth = None if true_z is None else pipeline.medium_at_depth(camera, true_z)
+            at_depth = _medium_at_true_depth(pipeline, dm, idx, camera, tuple(true_t.shape[:2]))
             row["medium"] = recovery.add(
                 out["transmittance"], out["scattering"], true_t, true_s, hazy_in, clean_ref, at_depth
             )
@@ -227,6 +227,15 @@ def _truth(
     if not medium:
         return observable, None, None
     return observable, true_t, reference_map(dm, REFERENCE_S_KEY, idx, size)
+
+
+def _medium_at_true_depth(
+    pipeline: Pipeline, dm: DataManager, idx: int, camera: Cameras, size: tuple[int, int]
+) -> tuple[Tensor, Tensor] | None:
+    """The model's T [H, W, 1] and S [H, W, 3] marched to view ``idx``'s true depth; None without a
+    depth map or a medium."""
+    true_z = reference_depth(dm, idx, size)  # [H, W, 1] in the run's frame
+    return None if true_z is None else pipeline.medium_at_depth(camera, true_z)
 
 
 def _mean_observable(rows: list[dict[str, float | None]]) -> dict[str, Any] | None:
