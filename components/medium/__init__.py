@@ -1,3 +1,3 @@
 """The view-shared medium field: extinction beta(x) and medium light L(x, v) backends."""
 
-from components.medium import fields, gaussian_bound  # noqa: F401  (registers)
+from components.medium import fields, gaussian_bound, reference  # noqa: F401  (registers)

@@ -24,7 +24,10 @@ from tridehaze_plugin.config import ComponentConfig, NonNegative, Range, Registr
 from tridehaze_plugin.registry import REGISTRY
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from components.data.cameras import Cameras
+    from components.data.scene import SceneTransform
     from components.gaussians.model import GaussianModel
     from components.medium.compositing import MediumCompositor, MediumRender
     from components.rasterizers.base import Rasterizer
@@ -97,7 +100,8 @@ class MediumConfig(ComponentConfig):
 
     backend: Annotated[str, RegistryChoice("medium", allow=("auto",))] = "none"
     """Medium representation: ``triplane``, ``voxel``, ``mlp``, ``fourier``, ``constant``,
-    ``gaussian-bound``, ``none``, or ``auto``: before training a haze probe of the training views
+    ``gaussian-bound``, ``none``, ``reference`` (a diagnosis on td-synth data: the generator's true
+    medium, nothing learnt), or ``auto``: before training a haze probe of the training views
     classifies the haze (none / homogeneous / varying / unsure), picks ``none`` only for a capture
     it can show to be clear (else triplane) and logs why, with a confidence (docs/tradeoff.md)."""
     resolution: Annotated[int, Range(2, 1024)] = 64
@@ -187,6 +191,10 @@ class MediumField(nn.Module):
     @torch.no_grad()
     def initialize(self, beta: float, light: Tensor) -> None:  # noqa: B027 - optional
         """Set the field to a uniform extinction ``beta`` and light ``light`` [3] (data-driven init)."""
+
+    def bind_scene(self, root: Path, transform: SceneTransform) -> None:  # noqa: B027 - optional hook
+        """Read what the field needs from the dataset itself (``reference``: the generator's medium);
+        ``root`` is the dataset folder, ``transform`` maps its world to the run's frame."""
 
     def attach(self, model: GaussianModel) -> None:  # noqa: B027 - optional hook
         """Bind to the scene's Gaussians once they exist (a medium living on them adds its attribute)."""

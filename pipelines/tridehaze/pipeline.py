@@ -225,6 +225,7 @@ class GaussianPipeline(Pipeline):
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
+        self.medium.bind_scene(scene.root, scene.transform)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
         dcp = (
