@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_output import publish  # noqa: E402
-from paired_restoration import load_arm  # noqa: E402
+from paired_restoration import arm_folders, load_arm  # noqa: E402
 
 SHOWN = (
     ("psnr", ("restoration", "psnr")),
@@ -110,12 +110,7 @@ def main() -> None:
     ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
     ap.add_argument("--title", default="Restoration by arm")
     args = ap.parse_args()
-    arms = []
-    for spec in args.arms:
-        name, sep, folder = spec.partition("=")
-        if not sep or not Path(folder).is_dir():
-            ap.error(f"--arms takes NAME=FOLDER with an existing folder, got {spec!r}")
-        arms.append((name, load_arm(Path(folder), args.method)))
+    arms = [(name, load_arm(folder, args.method)) for name, folder in arm_folders(ap, args.arms)]
     if len(arms) < 2:
         ap.error("give at least two arms")
     rows = rows_of(arms)

@@ -53,6 +53,17 @@ def load_arm(folder: Path, method: str) -> dict[tuple[str, int], dict]:
     return out
 
 
+def arm_folders(ap: argparse.ArgumentParser, specs: list[str]) -> list[tuple[str, Path]]:
+    """``NAME=FOLDER`` arguments as (name, folder); a usage error for a missing folder."""
+    arms = []
+    for spec in specs:
+        name, sep, folder = spec.partition("=")
+        if not sep or not Path(folder).is_dir():
+            ap.error(f"--arms takes NAME=FOLDER with an existing folder, got {spec!r}")
+        arms.append((name, Path(folder)))
+    return arms
+
+
 def paired_rows(a: dict[tuple[str, int], dict], b: dict[tuple[str, int], dict]) -> list[dict]:
     """One row per (scene, seed) both arms finished: each metric in both arms."""
     rows = []
@@ -176,13 +187,7 @@ def main() -> None:
     ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
     ap.add_argument("--title", default="Paired restoration benchmark")
     args = ap.parse_args()
-    arms = []
-    for spec in args.arms:
-        name, sep, folder = spec.partition("=")
-        if not sep or not Path(folder).is_dir():
-            ap.error(f"--arms takes NAME=FOLDER with an existing folder, got {spec!r}")
-        arms.append((name, Path(folder)))
-    (na, fa), (nb, fb) = arms
+    (na, fa), (nb, fb) = arm_folders(ap, args.arms)
     rows = paired_rows(load_arm(fa, args.method), load_arm(fb, args.method))
     if not rows:
         ap.error(f"no (scene, seed) finished in both {fa} and {fb}")
