@@ -18,21 +18,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_output import publish  # noqa: E402
-from paired_restoration import arm_folders, load_arm  # noqa: E402
+from paired_restoration import arm_folders, load_arm, result_value  # noqa: E402
 
 SHOWN = (
     ("psnr", ("restoration", "psnr")),
     ("observable", ("observable", "psnr")),
     ("t_mae", ("medium", "t_mae")),
 )
-
-
-def _get(result: dict, keys: tuple[str, ...]) -> float | None:
-    for k in keys:
-        if not isinstance(result, dict) or result.get(k) is None:
-            return None
-        result = result[k]
-    return float(result)
 
 
 def rows_of(arms: list[tuple[str, dict]]) -> list[dict]:
@@ -42,7 +34,7 @@ def rows_of(arms: list[tuple[str, dict]]) -> list[dict]:
         {
             "scene": scene,
             "seed": seed,
-            **{n: [_get(runs[(scene, seed)], k) for _, runs in arms] for n, k in SHOWN},
+            **{n: [result_value(runs[(scene, seed)], k) for _, runs in arms] for n, k in SHOWN},
         }
         for scene, seed in sorted(common)
     ]

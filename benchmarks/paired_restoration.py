@@ -35,7 +35,8 @@ METRICS: tuple[tuple[str, tuple[str, ...], int], ...] = (
 """(name, keys into a run's result, +1 if higher is better / -1 if lower / 0 neither)."""
 
 
-def _get(result: dict, keys: tuple[str, ...]) -> float | None:
+def result_value(result: dict, keys: tuple[str, ...]) -> float | None:
+    """The number at ``keys`` in a run's result, or None where a key is missing."""
     for k in keys:
         if not isinstance(result, dict) or result.get(k) is None:
             return None
@@ -70,7 +71,7 @@ def paired_rows(a: dict[tuple[str, int], dict], b: dict[tuple[str, int], dict]) 
     for scene, seed in sorted(set(a) & set(b)):
         row: dict = {"scene": scene, "seed": seed}
         for name, keys, _ in METRICS:
-            row[name] = [_get(a[(scene, seed)], keys), _get(b[(scene, seed)], keys)]
+            row[name] = [result_value(a[(scene, seed)], keys), result_value(b[(scene, seed)], keys)]
         rows.append(row)
     return rows
 

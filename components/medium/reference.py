@@ -18,8 +18,8 @@ from torch import Tensor
 
 from components.data.scene import SceneTransform
 from components.medium.base import MediumField, MediumSample
-from components.synth.layouts import LAYOUTS, make_layout
-from components.synth.medium import PRESETS, Medium, make_medium
+from components.synth.layouts import make_layout
+from components.synth.medium import Medium, make_medium
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import register
 
@@ -38,11 +38,9 @@ def generator_medium(root: Path) -> Medium:
         settings = json.loads(path.read_text())["settings"]
         layout, haze, seed = settings["layout"], settings["haze"], int(settings["seed"])
         beta_scale = float(settings.get("beta_scale", 1.0))
-    except (ValueError, KeyError, TypeError) as exc:
+        return make_medium(haze, make_layout(layout, seed).medium_context(), seed, beta_scale)
+    except (ValueError, KeyError, TypeError) as exc:  # unreadable, or an unknown layout / preset
         raise ConfigError(f"cannot read the generator's settings ({exc})", where=str(path), fix=fix) from None
-    if layout not in LAYOUTS or haze not in PRESETS:
-        raise ConfigError(f"unknown layout {layout!r} or haze {haze!r}", where=str(path), fix=fix)
-    return make_medium(haze, make_layout(layout, seed).medium_context(), seed, beta_scale)
 
 
 class ReferenceField(MediumField):

@@ -7,6 +7,7 @@ clear user error.
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -90,3 +91,7 @@ def test_needs_the_generator_record(scene, tmp_path, device):
     (copy / "synth_meta.json").write_text("{not json")
     with pytest.raises(ConfigError, match="cannot read the generator's settings"):
         _trainer(copy, tmp_path / "out2", device)
+    settings = {"layout": "street", "haze": "smog", "seed": 3}
+    (copy / "synth_meta.json").write_text(json.dumps({"settings": settings}))
+    with pytest.raises(ConfigError, match="unknown haze preset 'smog'"):
+        _trainer(copy, tmp_path / "out3", device)
