@@ -72,6 +72,7 @@ ABLATIONS = [
     ("--pipeline.lambda-dcp", "0"),
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
+    ("--pipeline.medium-residual-blur", "2", "--pipeline.composite.depth-gradient"),
 ]
 
 
