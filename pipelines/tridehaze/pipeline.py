@@ -20,9 +20,9 @@ from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import edge_aware_smoothness, log_depth_l1, pearson_depth_loss
+from components.losses.filters import low_pass
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
-from components.losses.filters import low_pass
 from components.medium.compositing import (
     CompositeConfig,
     MediumCompositor,
@@ -351,7 +351,13 @@ class GaussianPipeline(Pipeline):
         return StepResult(loss=loss, metrics=metrics)
 
     def _composite_loss(
-        self, clean: Tensor, out: RasterizeOutput, med: MediumRender | None, bg: Tensor, target: Tensor, stage: int
+        self,
+        clean: Tensor,
+        out: RasterizeOutput,
+        med: MediumRender | None,
+        bg: Tensor,
+        target: Tensor,
+        stage: int,
     ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """The hazy composite [H, W, 3], its photometric loss and the loss's terms
         (``medium_residual_blur``: the Gaussians fit the full-resolution composite, the medium's
@@ -363,8 +369,10 @@ class GaussianPipeline(Pipeline):
         if med.at_infinity:
             clean = self._surface_colour(clean, out, med, bg)
         sigma = self.config.medium_residual_blur
-        scene_med = med if sigma <= 0 else replace(
-            med, transmittance=med.transmittance.detach(), scattering=med.scattering.detach()
+        scene_med = (
+            med
+            if sigma <= 0
+            else replace(med, transmittance=med.transmittance.detach(), scattering=med.scattering.detach())
         )
         hazy = composite(self.policy.apply(clean, med.transmittance, stage), scene_med)
         loss, terms = self.loss_fn(hazy, target)
