@@ -40,6 +40,7 @@ from pipelines.tridehaze.priors import (
     dehaze_point_colors,
     dehazed_views,
     estimate_medium,
+    observed_point_colors,
     resolve_depth_prior,
     scaled_step,
 )
@@ -136,6 +137,11 @@ class GaussianPipelineConfig(PipelineConfig):
     medium is too dense (docs/results/medium_recovery.md, session 14)."""
     dehaze_seed_colors: bool = True
     """Take the estimated haze out of the seed points' colours before initialising the Gaussians."""
+    seed_colors: Literal["nearest", "observed"] = "nearest"
+    """How the seed colours are dehazed: ``nearest`` dehazes the dataset's point colour at the
+    nearest camera's distance; ``observed`` re-reads every training view that sees the point and
+    dehazes each observation at its own distance (T^2-weighted mean), which does not depend on how
+    the dataset chose its one colour (docs/results/medium_recovery.md, session 17)."""
     input_dehaze: Literal["none", "dcp"] = "none"
     """Dehaze the training views before training: ``dcp`` replaces each by its single-image dark
     channel prior restoration (guided-filter refined T, clamped at 0.05): the restoration-assisted
@@ -274,6 +280,9 @@ class GaussianPipeline(Pipeline):
             )
         if cfg.dehaze_seed_colors and points is not None and colors is not None:
             colors = dehaze_point_colors(points, colors, dm.scene.cameras.centers, est)
+            if cfg.seed_colors == "observed" and est.beta is not None:
+                observed, seen = observed_point_colors(dm, list(dm.train_indices), points, est)
+                colors = torch.where(seen[:, None], observed, colors)
         return colors
 
     def _view_priors(self, dcp: dict[int, DCPResult], plan: _PriorPlan, seed: int) -> dict[int, ViewPrior]:

@@ -132,6 +132,36 @@ def dehaze_point_colors(
     return ((c - A * (1 - T)) / T).clamp(0.0, 1.0)
 
 
+def observed_point_colors(
+    dm: DataManager, indices: list[int], points: Tensor, est: MediumEstimate, t_floor: float = 0.2
+) -> tuple[Tensor, Tensor]:
+    """Seed colours re-read from the training views that see each point, every observation c_k
+    dehazed at its own distance d_k, J_k = (c_k - A (1 - T_k)) / T_k with T_k = exp(-beta d_k),
+    and averaged with weight T_k^2 (the inversion multiplies the photo's error by 1 / T_k).
+    A dataset's point colour is one hazy value whose viewing distance is unknown: dehazing it at
+    the nearest camera's distance, the shortest one, leaves haze in and starts the Gaussians too
+    bright. Visibility is the SfM depth prior's occlusion-filtered point z-buffer. Returns the
+    colours [M, 3] and which points any view saw [M] (the others keep their dataset colour)."""
+    pts = points.detach().float().cpu()
+    num, den = torch.zeros(len(pts), 3), torch.zeros(len(pts))
+    A = est.airlight.float().cpu()  # [3]
+    for i in indices:
+        cam = dm.camera(i).to("cpu")
+        H, W = int(cam.height[0]), int(cam.width[0])
+        viewmat, K = cam.viewmats()[0].float(), cam.Ks()[0].float()
+        zbuf, valid = depth_from_sfm(pts, viewmat, K, H, W)  # [H, W] nearest point depth
+        pc, uv = project_points(pts, viewmat, K)  # [M, 3], [M, 2]
+        ok = in_image(pc, uv, W, H, near=1e-3)
+        u, v = uv[:, 0].long().clamp(0, W - 1), uv[:, 1].long().clamp(0, H - 1)
+        ok &= valid[v, u] & (pc[:, 2] <= 1.02 * zbuf[v, u])
+        c = dm.image(i).cpu()[v[ok], u[ok]].float()  # [m, 3] hazy observations
+        T = torch.exp(-est.beta * pc[ok].norm(dim=-1)).clamp_min(t_floor)[:, None]  # [m, 1]
+        num[ok] += T**2 * ((c - A * (1 - T)) / T).clamp(0.0, 1.0)
+        den[ok] += T[:, 0] ** 2
+    seen = den > 0
+    return (num / den.clamp_min(1e-12)[:, None]).to(points.device), seen.to(points.device)
+
+
 def build_view_priors(
     dm: DataManager,
     indices: list[int],
