@@ -20,7 +20,6 @@ from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import edge_aware_smoothness, log_depth_l1, pearson_depth_loss
-from components.losses.filters import low_pass
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
@@ -108,12 +107,6 @@ class GaussianPipelineConfig(PipelineConfig):
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
     channel is close, drifts to too little haze under a pure bound."""
-    medium_residual_blur: Annotated[float, NonNegative] = 0.0
-    """Gaussian sigma (pixels) of the photometric residual the medium's gradient sees; 0 = the
-    full-resolution loss, shared with the Gaussians. The Gaussians' own fitting error e enters the
-    composite as e*T, so a full-resolution loss rewards a lower T by about T*E[e^2] (errors in
-    variables: a too-dense medium hides the scene's error). A low-passed residual averages e out;
-    the Gaussians' gradient and the forward pass are unchanged (docs/results/medium_recovery.md)."""
     lambda_light: Annotated[float, NonNegative] = 0.0
     """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
     the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
@@ -332,7 +325,14 @@ class GaussianPipeline(Pipeline):
         with record_function("td.medium"):
             med = self._medium(cam, out)
         with record_function("td.composite+loss"):
-            hazy, loss, terms = self._composite_loss(clean, out, med, bg, target, stage)
+            if med is None:
+                hazy = clean
+            else:
+                if med.at_infinity:
+                    clean = self._surface_colour(clean, out, med, bg)
+                hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
+            loss, terms = self.loss_fn(hazy, target)
+        self._photometric = loss.detach()
         metrics.update({k: v.detach() for k, v in terms.items()})
         prior = self.priors.get(idx)
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
@@ -358,40 +358,6 @@ class GaussianPipeline(Pipeline):
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
-
-    def _composite_loss(
-        self,
-        clean: Tensor,
-        out: RasterizeOutput,
-        med: MediumRender | None,
-        bg: Tensor,
-        target: Tensor,
-        stage: int,
-    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
-        """The hazy composite [H, W, 3], its photometric loss and the loss's terms
-        (``medium_residual_blur``: the Gaussians fit the full-resolution composite, the medium's
-        terms a low-passed one)."""
-        if med is None:
-            loss, terms = self.loss_fn(clean, target)
-            self._photometric = loss.detach()
-            return clean, loss, terms
-        if med.at_infinity:
-            clean = self._surface_colour(clean, out, med, bg)
-        sigma = self.config.medium_residual_blur
-        scene_med = (
-            med
-            if sigma <= 0
-            else replace(med, transmittance=med.transmittance.detach(), scattering=med.scattering.detach())
-        )
-        hazy = composite(self.policy.apply(clean, med.transmittance, stage), scene_med)
-        loss, terms = self.loss_fn(hazy, target)
-        self._photometric = loss.detach()  # the scene's fit, which densification's plateau watches
-        if sigma > 0:
-            medium_view = composite(clean.detach(), med)  # [H, W, 3]: gradient to T and S only
-            medium_loss, _ = self.loss_fn(low_pass(medium_view, sigma), low_pass(target, sigma))
-            loss = loss + medium_loss
-            terms["medium_photometric"] = medium_loss.detach()
-        return hazy, loss, terms
 
     def _medium_priors(
         self, step: int, stage: int, target: Tensor, med: MediumRender, prior: ViewPrior | None, metrics: dict

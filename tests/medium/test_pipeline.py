@@ -72,7 +72,6 @@ ABLATIONS = [
     ("--pipeline.lambda-dcp", "0"),
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
-    ("--pipeline.medium-residual-blur", "2", "--pipeline.composite.depth-gradient"),
 ]
 
 
