@@ -72,6 +72,7 @@ ABLATIONS = [
     ("--pipeline.lambda-dcp", "0"),
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
+    ("--pipeline.seed-colors", "observed"),
 ]
 
 
