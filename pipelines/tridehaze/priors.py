@@ -128,8 +128,12 @@ def dehaze_point_colors(
         c = c / 255.0
     dist = torch.cdist(points.float(), centers.float().to(points.device)).min(dim=1).values  # [M]
     T = torch.exp(-est.beta * dist).clamp_min(t_floor)[:, None]
-    A = est.airlight.to(c)
-    return ((c - A * (1 - T)) / T).clamp(0.0, 1.0)
+    return _invert_haze(c, est.airlight.to(c), T)
+
+
+def _invert_haze(colour: Tensor, airlight: Tensor, T: Tensor) -> Tensor:
+    """J = (c - A (1 - T)) / T clamped to [0, 1]: colour [M, 3], airlight [3], T [M, 1]."""
+    return ((colour - airlight * (1 - T)) / T).clamp(0.0, 1.0)
 
 
 def observed_point_colors(
@@ -156,7 +160,7 @@ def observed_point_colors(
         ok &= valid[v, u] & (pc[:, 2] <= 1.02 * zbuf[v, u])
         c = dm.image(i).cpu()[v[ok], u[ok]].float()  # [m, 3] hazy observations
         T = torch.exp(-est.beta * pc[ok].norm(dim=-1)).clamp_min(t_floor)[:, None]  # [m, 1]
-        num[ok] += T**2 * ((c - A * (1 - T)) / T).clamp(0.0, 1.0)
+        num[ok] += T**2 * _invert_haze(c, A, T)
         den[ok] += T[:, 0] ** 2
     seen = den > 0
     return (num / den.clamp_min(1e-12)[:, None]).to(points.device), seen.to(points.device)
