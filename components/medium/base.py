@@ -21,6 +21,7 @@ from torch.nn import functional as F
 
 from components.gaussians.sh import eval_sh, num_sh_bases
 from tridehaze_plugin.config import ComponentConfig, NonNegative, Range, RegistryChoice, check_numbers
+from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
 if TYPE_CHECKING:
@@ -128,10 +129,20 @@ class MediumConfig(ComponentConfig):
     """Initial medium light (RGB); replaced by the dark-channel airlight estimate when available."""
     tv_weight: Annotated[float, NonNegative] = 0.0
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
+    reference_scale: Annotated[tuple[float, float], NonNegative] = (1.0, 1.0)
+    """``reference`` backend only (a diagnosis): multipliers on the true extinction and on the true
+    light (clamped to [0, 1]). A what-if: do the hazy photos tell a denser, thinner, brighter or
+    darker medium from the true one (docs/results/identifiability.md)?"""
 
     def check_values(self, prefix: str = "--pipeline.medium.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
         check_numbers(self, prefix.removeprefix("--"))
+        if tuple(self.reference_scale) != (1.0, 1.0) and self.backend != "reference":
+            raise ConfigError(
+                f"{prefix}reference-scale scales the generator's true medium; the {self.backend!r} "
+                "backend has none",
+                fix=f"add {prefix}backend reference, or leave {prefix}reference-scale at 1 1",
+            )
 
     def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
         if self.backend == "auto":

@@ -62,8 +62,9 @@ class ReferenceField(MediumField):
         world = (x.double() / self._scale - t) @ R  # [P, 3] (row vectors: R^T applied)
         view = dirs.double() @ R  # [P, 3]
         view = view / view.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        beta = self._medium.extinction(world) / self._scale  # [P] per unit of the run's frame
-        light = self._medium.light(world[:, None, :], view)[:, 0, :]  # [P, 3]
+        beta_scale, light_scale = self.config.reference_scale
+        beta = self._medium.extinction(world) / self._scale * beta_scale  # [P] per unit of the run's frame
+        light = (self._medium.light(world[:, None, :], view)[:, 0, :] * light_scale).clamp(0.0, 1.0)  # [P, 3]
         return MediumSample(beta.to(x.dtype), light.to(x.dtype))
 
 

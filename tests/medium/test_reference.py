@@ -17,6 +17,7 @@ import torch
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_depth, reference_map
 from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
+from components.medium.base import MediumConfig
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError
 
@@ -36,14 +37,14 @@ def scene(request, tmp_path_factory) -> tuple[str, Path]:
     return request.param, root
 
 
-def _trainer(data: Path, out: Path, device: torch.device, steps: int = 1) -> Trainer:
+def _trainer(data: Path, out: Path, device: torch.device, steps: int = 1, extra: tuple[str, ...] = ()) -> Trainer:
     from rich.console import Console
 
     argv = [
         "tri-dehaze", "--data", str(data), "--output-dir", str(out), "--max-steps", str(steps),
         "--device", str(device), "--pipeline.medium.backend", "reference",
         "--pipeline.rasterizer.backend", "torch", "--pipeline.freeze-step", "2",
-        "--pipeline.medium-hold-fraction", "0", "--steps-per-save", "100",
+        "--pipeline.medium-hold-fraction", "0", "--steps-per-save", "100", *extra,
     ]  # fmt: skip
     trainer = Trainer(parse_args(argv), console=Console(quiet=True))
     trainer.setup()
@@ -95,3 +96,27 @@ def test_needs_the_generator_record(scene, tmp_path, device):
     (copy / "synth_meta.json").write_text(json.dumps({"settings": settings}))
     with pytest.raises(ConfigError, match="unknown haze preset 'smog'"):
         _trainer(copy, tmp_path / "out3", device)
+
+
+def test_scaled_true_medium(scene, tmp_path, device):
+    """``reference-scale B L``: the true extinction times B and the true light times L (clamped)."""
+    _, data = scene
+    true = _trainer(data, tmp_path / "a", device).pipeline.medium
+    scaled = _trainer(data, tmp_path / "b", device, extra=("--pipeline.medium.reference-scale", "1.6", "0.5"))
+    gen = torch.Generator().manual_seed(0)
+    x = (torch.rand(256, 3, generator=gen) * 2 - 1).to(device)  # [P, 3] in the normalised frame
+    dirs = torch.nn.functional.normalize(torch.randn(256, 3, generator=gen), dim=-1).to(device)  # [P, 3]
+    a, b = true(x, dirs), scaled.pipeline.medium(x, dirs)
+    assert float(a.beta.max()) > 0 and float(a.light.min()) > 0  # a real medium to scale
+    torch.testing.assert_close(b.beta, 1.6 * a.beta, rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(b.light, 0.5 * a.light, rtol=1e-5, atol=1e-7)
+    bright = _trainer(data, tmp_path / "c", device, extra=("--pipeline.medium.reference-scale", "1", "10"))
+    assert float(bright.pipeline.medium(x, dirs).light.max()) == 1.0  # a light is at most 1
+
+
+def test_scale_needs_the_reference_backend():
+    with pytest.raises(ConfigError, match="reference-scale scales the generator's true medium"):
+        MediumConfig(backend="triplane", reference_scale=(2.0, 1.0)).check_values()
+    with pytest.raises(ConfigError, match="reference-scale"):
+        MediumConfig(backend="reference", reference_scale=(-1.0, 1.0)).check_values()
+    MediumConfig(backend="reference", reference_scale=(0.5, 1.2)).check_values()
