@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import torch
 
+from components.medium.base import MediumConfig
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_depth, reference_map
 from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
-from components.medium.base import MediumConfig
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError
 
@@ -37,7 +37,9 @@ def scene(request, tmp_path_factory) -> tuple[str, Path]:
     return request.param, root
 
 
-def _trainer(data: Path, out: Path, device: torch.device, steps: int = 1, extra: tuple[str, ...] = ()) -> Trainer:
+def _trainer(
+    data: Path, out: Path, device: torch.device, steps: int = 1, extra: tuple[str, ...] = ()
+) -> Trainer:
     from rich.console import Console
 
     argv = [
