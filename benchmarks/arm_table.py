@@ -3,7 +3,8 @@
 Each arm is a ``td-bench restoration`` output folder (``ARM/seed<N>/results/<scene>/<method>.json``);
 typically the default, the ``reference`` medium (the generator's true medium, nothing learnt), the
 same with a scene-side change, and an oracle. Per scene and seed: restoration PSNR (whole image and
-observable pixels) and T MAE at the rendered depth of every arm; per seed the mean over the scenes
+observable pixels), T MAE at the rendered depth and the hazy test views' reconstruction PSNR (how
+well the arm explains photos it did not train on) of every arm; per seed the mean over the scenes
 that every arm finished. Writes STEM.{json,md,png}.
 
     python benchmarks/arm_table.py --arms default=runs/base reference=runs/ref --output docs/results/x
@@ -24,6 +25,7 @@ SHOWN = (
     ("psnr", ("restoration", "psnr")),
     ("observable", ("observable", "psnr")),
     ("t_mae", ("medium", "t_mae")),
+    ("reconstruction", ("reconstruction", "psnr")),
 )
 
 
@@ -58,16 +60,17 @@ def _cell(values: list[float | None], digits: int) -> str:
 
 def table(rows: list[dict], means: list[dict], names: list[str]) -> str:
     arms = " / ".join(names)
-    head = f"| scene | seed | restoration ({arms}) | observable | T MAE |"
-    lines = [head, "|---|---|---|---|---|"]
+    head = f"| scene | seed | restoration ({arms}) | observable | T MAE | hazy reconstruction |"
+    lines = [head, "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['scene']} | {r['seed']} | {_cell(r['psnr'], 2)} | {_cell(r['observable'], 2)} | {_cell(r['t_mae'], 3)} |"
+            f"| {r['scene']} | {r['seed']} | {_cell(r['psnr'], 2)} | {_cell(r['observable'], 2)} | "
+            f"{_cell(r['t_mae'], 3)} | {_cell(r['reconstruction'], 2)} |"
         )
     for m in means:
         lines.append(
             f"| **mean ({m['scenes']} scenes)** | {m['seed']} | {_cell(m['psnr'], 2)} | "
-            f"{_cell(m['observable'], 2)} | {_cell(m['t_mae'], 3)} |"
+            f"{_cell(m['observable'], 2)} | {_cell(m['t_mae'], 3)} | {_cell(m['reconstruction'], 2)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -81,14 +84,22 @@ def plot(rows: list[dict], path: Path) -> None:
     names = next(r["arms"] for r in rows if "arms" in r)
     rows = [r for r in rows if "scene" in r]
     labels = [f"{r['scene']}\ns{r['seed']}" for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(max(8, 0.9 * len(rows) + 3), 4.2), sharey=True)
+    fig, axes = plt.subplots(1, 3, figsize=(max(11, 1.3 * len(rows) + 4), 4.2))
     width = 0.8 / len(names)
-    for ax, key, title in ((axes[0], "psnr", "whole image"), (axes[1], "observable", "observable pixels")):
+    panels = (
+        (axes[0], "psnr", "restoration PSNR (dB), whole image"),
+        (axes[1], "observable", "restoration PSNR (dB), observable pixels"),
+        (axes[2], "reconstruction", "hazy test views' PSNR (dB)"),
+    )
+    for ax, key, title in panels:
         for i, name in enumerate(names):
             xs = [k + (i - (len(names) - 1) / 2) * width for k in range(len(rows))]
             ax.bar(xs, [r[key][i] or 0.0 for r in rows], width, label=name, color=f"C{i}")
+        shown = [v for r in rows for v in r[key] if v is not None]
+        if shown:  # differences of a dB or two must show: the bars start near the smallest value
+            ax.set_ylim(max(0.0, min(shown) - 3.0), max(shown) + 1.0)
         ax.set_xticks(range(len(rows)), labels, rotation=60, ha="right", fontsize=7)
-        ax.set_title(f"restoration PSNR (dB), {title}")
+        ax.set_title(title, fontsize=9)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -34,6 +34,7 @@ def test_rows_only_where_every_arm_finished_and_means_per_seed(tmp_path):
     assert sorted((r["scene"], r["seed"]) for r in rows) == [("room", 7), ("room", 42), ("street", 42)]
     street = next(r for r in rows if r["scene"] == "street")
     assert street["psnr"] == [18.0, 20.0, 22.0] and street["observable"] == [19.0, 21.0, 23.0]
+    assert street["reconstruction"] == [30.0, 30.0, 30.0]
     assert data[-1]["arms"] == ["a", "b", "c"]
     means = {m["seed"]: m for m in data[-1]["seed_means"]}
     assert means[42]["scenes"] == 2 and means[42]["psnr"] == [16.5, 18.0, 19.5]
