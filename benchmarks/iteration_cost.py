@@ -7,6 +7,8 @@ load from other users of a shared machine hits all alike; medians and ratios to 
 reported. The Tri-DehazeGS variants differ in how many rays the medium is marched along
 (``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation) and in how each pixel
 reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``).
+The "depth holds" variants add ``--pipeline.composite.depth-gradient
+--pipeline.lambda-depth-metric 0.05`` (the gradient into the rendered depth and the metric prior).
 
     python benchmarks/iteration_cost.py                       # 320x240, ~50k Gaussians
     python benchmarks/iteration_cost.py --width 160 --height 120 --points 10000
@@ -53,6 +55,8 @@ def variants() -> dict[str, tuple[str, dict]]:
         "vanilla-gs": ("vanilla-gs", {}),
         "tri-dehaze (default: ~1200 rays)": ("tri-dehaze", {}),
         "tri-dehaze (torch read-out)": ("tri-dehaze", {"fused": False}),
+        "tri-dehaze (depth holds)": ("tri-dehaze", {"holds": True}),
+        "tri-dehaze (depth holds, torch read-out)": ("tri-dehaze", {"holds": True, "fused": False}),
         "tri-dehaze (stride 4)": ("tri-dehaze", {"stride": 4}),
         "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
         "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
@@ -71,8 +75,11 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
             p.composite,
             ray_stride=over.get("stride", p.composite.ray_stride),
             fused_readout=over.get("fused", p.composite.fused_readout),
+            depth_gradient=over.get("holds", p.composite.depth_gradient),
         ),
     )
+    if over.get("holds"):  # the depth holds: the composite's gradient into depth + the metric prior
+        p = replace(p, lambda_depth_metric=0.05)
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, device, seed=0)

@@ -70,7 +70,7 @@ class CompositeConfig:
     fused_readout: bool = True
     """Read each pixel's T and S from the coarse rays with the compiled kernel on CPU (one pass per
     pixel, forward and backward) where a C++ compiler is available; the torch ops otherwise, and
-    always on GPU or with ``depth_gradient``. The same values to float32 rounding
+    always on GPU. The same values to float32 rounding
     (tests/medium/test_pixel_readout.py); off: always the torch ops."""
     t_floor: Annotated[float, Range(0.0, 0.5, lo_open=True)] = 1e-6
     """Smallest transmittance returned (keeps 1/T and log T finite in opaque haze)."""

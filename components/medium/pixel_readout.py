@@ -5,8 +5,9 @@ pixel then reads its four nearest rays at its own depth (the torch path below sa
 that read-out was the medium's largest cost: some thirty elementwise ops on [4, H*W] tensors per
 direction, each allocating and filling a full tensor. The kernel
 (``csrc/pixel_readout.cpp``) does the same arithmetic in one pass per pixel, forward and backward,
-for float32 and float64; the torch path stays the reference and serves every other case (CUDA,
-other dtypes, a gradient into the depth, no compiler). Parity and gradients:
+for float32 and float64, with the gradient into the table and (where asked) into each pixel's
+depth; the torch path stays the reference and serves every other case (CUDA, other dtypes, no
+compiler). Parity and gradients:
 tests/medium/test_pixel_readout.py; speed: benchmarks/iteration_cost.py.
 """
 
@@ -32,14 +33,14 @@ def _declare(lib: ctypes.CDLL) -> None:
         fwd = getattr(lib, f"tdh_readout_forward_{suffix}")
         fwd.argtypes, fwd.restype = [i64, i32, i32] + [ptr] * 10, None
         bwd = getattr(lib, f"tdh_readout_backward_{suffix}")
-        bwd.argtypes, bwd.restype = [i64, i32, i64, i32] + [ptr] * 11, None
+        bwd.argtypes, bwd.restype = [i64, i32, i64, i32] + [ptr] * 12, None
 
 
 LIBRARY = NativeLibrary(
     "pixel_readout",
     Path(__file__).with_name("csrc") / "pixel_readout.cpp",
     "tdh_readout_abi_version",
-    1,
+    2,
     _declare,
 )
 
@@ -93,14 +94,15 @@ def read_torch(
 
 
 class _ReadoutFn(torch.autograd.Function):
-    """The kernel's read; gradients reach the table only (the caller checks ``zq`` needs none)."""
+    """The kernel's read; gradients reach the table and, where it asks for one, the depth ``zq``."""
 
     @staticmethod
     def forward(ctx, table: Tensor, grid: ReadoutGrid, zq: Tensor, last_light: bool, threads: int):
         lib, suffix = LIBRARY.load(), "f32" if table.dtype == torch.float32 else "f64"
         g = _contiguous(grid, table)
         P = g.rays.shape[1]
-        zq = zq.reshape(-1).to(table.dtype).contiguous()
+        ctx.zq_shape, ctx.zq_dtype = zq.shape, zq.dtype
+        zq = zq.detach().reshape(-1).to(table.dtype).contiguous()
         tau, S = table.new_empty(P), table.new_empty(P, 3)
         L = table.new_empty(P, 3) if last_light else None
         getattr(lib, f"tdh_readout_forward_{suffix}")(
@@ -121,12 +123,15 @@ class _ReadoutFn(torch.autograd.Function):
         # contiguous copies bound to names: a temporary would be freed before the kernel runs
         g_tau, g_S = g_tau.contiguous(), g_S.contiguous()
         g_L = g_L.contiguous() if ctx.last_light and g_L is not None else None
+        g_zq = torch.empty_like(ctx.zq) if ctx.needs_input_grad[2] else None
         getattr(lib, f"tdh_readout_backward_{suffix}")(
             g.rays.shape[1], g.K, R, ctx.threads,
             *map(_ptr, (g.table, g.rays, g.wgt, g.pix_len, g.ray_len, g.zfar, ctx.zq)),
-            _ptr(g_tau), _ptr(g_S), _ptr(g_L), _ptr(grad),
+            _ptr(g_tau), _ptr(g_S), _ptr(g_L), _ptr(grad), _ptr(g_zq),
         )  # fmt: skip
-        return grad, None, None, None, None
+        if g_zq is not None:
+            g_zq = g_zq.to(ctx.zq_dtype).reshape(ctx.zq_shape)
+        return grad, None, g_zq, None, None
 
 
 def _contiguous(grid: ReadoutGrid, table: Tensor) -> ReadoutGrid:
@@ -144,10 +149,10 @@ def _contiguous(grid: ReadoutGrid, table: Tensor) -> ReadoutGrid:
 
 
 def uses_kernel(grid: ReadoutGrid, zq: Tensor) -> bool:
-    """Whether :func:`read_pixels` takes the kernel for this read: CPU float32 / float64, no gradient
-    into the depth (the kernel has none), and a compiler that built it."""
+    """Whether :func:`read_pixels` takes the kernel for this read: CPU float32 / float64 and a
+    compiler that built it."""
     t = grid.table
-    if t.device.type != "cpu" or t.dtype not in (torch.float32, torch.float64) or zq.requires_grad:
+    if t.device.type != "cpu" or t.dtype not in (torch.float32, torch.float64):
         return False
     if t.numel() >= 2**31:  # the kernel indexes the table with int32
         return False

@@ -54,19 +54,29 @@ def _zq(grid: pr.ReadoutGrid, seed: int = 1) -> torch.Tensor:
     return (5.5 * torch.rand(1, P, generator=g, dtype=torch.float64)).to(grid.table.dtype)  # past zfar too
 
 
-def _read(grid: pr.ReadoutGrid, zq: torch.Tensor, last_light: bool, fused: bool, dtype: torch.dtype):
-    """Outputs and the table's gradient under a fixed random upstream gradient, in ``dtype``."""
+def _read(
+    grid: pr.ReadoutGrid,
+    zq: torch.Tensor,
+    last_light: bool,
+    fused: bool,
+    dtype: torch.dtype,
+    depth_grad: bool = False,
+):
+    """Outputs and the table's (and, ``depth_grad``, the depth's) gradient under a fixed random
+    upstream gradient, in ``dtype``."""
     table = grid.table.to(dtype).clone().requires_grad_(True)
+    zq = zq.to(dtype).clone().requires_grad_(depth_grad)
     g = pr.ReadoutGrid(
         table, grid.rays, grid.wgt.to(dtype), grid.pix_len.to(dtype), grid.ray_len.to(dtype),
         grid.zfar.to(dtype), grid.K,
     )  # fmt: skip
-    out = [o for o in pr.read_pixels(g, zq.to(dtype), last_light, fused=fused) if o is not None]
+    out = [o for o in pr.read_pixels(g, zq, last_light, fused=fused) if o is not None]
     gen = torch.Generator().manual_seed(5)
     sum(
         (o * torch.randn(o.shape, generator=gen, dtype=torch.float64).to(dtype)).sum() for o in out
     ).backward()
-    return [o.detach().double() for o in out] + [table.grad.double()]
+    grads = [table.grad.double()] + ([zq.grad.double()] if depth_grad else [])
+    return [o.detach().double() for o in out] + grads
 
 
 @needs_kernel
@@ -79,6 +89,33 @@ def test_kernel_matches_torch_in_float64(last_light) -> None:
     assert len(got) == (4 if last_light else 3) and got[-1].abs().sum() > 0
     for a, b in zip(got, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-13)
+
+
+@needs_kernel
+@pytest.mark.parametrize("last_light", [False, True])
+def test_kernel_depth_gradient_matches_torch_in_float64(last_light) -> None:
+    """The gradient into each pixel's depth (``composite.depth_gradient``), pixels past their rays'
+    far ends (zero gradient there) included."""
+    grid = _grid(torch.float64)
+    zq = _zq(grid)
+    ref = _read(grid, zq, last_light, False, torch.float64, depth_grad=True)
+    got = _read(grid, zq, last_light, True, torch.float64, depth_grad=True)
+    assert got[-1].shape == zq.shape and (got[-1] != 0).float().mean() > 0.3
+    assert (got[-1] == 0).any()  # beyond every neighbour's far end
+    for a, b in zip(got, ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-11, atol=1e-12)
+
+
+@needs_kernel
+def test_kernel_depth_gradient_in_float32_is_as_close_to_float64_as_torch() -> None:
+    grid = _grid(torch.float64)
+    zq = _zq(grid)
+    truth = _read(grid, zq, False, False, torch.float64, depth_grad=True)[-1]
+    ref = _read(grid, zq, False, False, torch.float32, depth_grad=True)[-1]
+    got = _read(grid, zq, False, True, torch.float32, depth_grad=True)[-1]
+    err_ref, err_got = float((ref - truth).abs().max()), float((got - truth).abs().max())
+    assert err_got <= 2 * err_ref + 1e-5, (err_got, err_ref)
+    torch.testing.assert_close(got, truth, rtol=1e-3, atol=1e-4)
 
 
 @needs_kernel
@@ -113,6 +150,22 @@ def test_kernel_gradcheck_float64(last_light) -> None:
 
 
 @needs_kernel
+def test_kernel_depth_gradcheck_float64() -> None:
+    """Depths inside their rays, off the interval boundaries (where the read-out has kinks)."""
+    grid = _grid(torch.float64, R=6, K=4, P=40, empty=False)
+    u = 0.05 + 0.9 * torch.rand(1, 40, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    zq = (u * grid.zfar.min()).requires_grad_(True)
+    pos = zq.detach() / grid.zfar[grid.rays] * grid.K
+    assert ((pos - pos.round()).abs() > 1e-4).all()
+
+    def f(z):
+        return tuple(o for o in pr.read_pixels(grid, z, True) if o is not None)
+
+    assert pr.uses_kernel(grid, zq)
+    assert torch.autograd.gradcheck(f, (zq,), eps=1e-7, atol=1e-6)
+
+
+@needs_kernel
 def test_threads_give_repeatable_sums_close_to_one_thread() -> None:
     grid = _grid(torch.float32, R=200, K=16, P=20_000)
     zq = _zq(grid)
@@ -131,9 +184,12 @@ def test_threads_give_repeatable_sums_close_to_one_thread() -> None:
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-4)
 
 
-@pytest.mark.parametrize("background", ["far", "infinite"])
-def test_compositor_same_with_either_read_out(background) -> None:
-    """T, S, the sky light and the field's gradients agree between the kernel and the torch ops."""
+@pytest.mark.parametrize(
+    ("background", "depth_gradient"), [("far", False), ("infinite", False), ("far", True)]
+)
+def test_compositor_same_with_either_read_out(background, depth_gradient) -> None:
+    """T, S, the sky light and the gradients of the field (and of the depth) agree between the
+    kernel and the torch ops."""
     results = []
     for fused in (False, True):
         field = BlobField(0.3, 2.0, (0.7, 0.6, 0.5))
@@ -146,22 +202,18 @@ def test_compositor_same_with_either_read_out(background) -> None:
 
         field.forward = forward
         z, alpha = _depth(3, torch.device("cpu"))
-        cfg = CompositeConfig(ray_stride=3, background=background, fused_readout=fused)
+        z = z.clone().requires_grad_(depth_gradient)
+        cfg = CompositeConfig(
+            ray_stride=3, background=background, fused_readout=fused, depth_gradient=depth_gradient
+        )
         med = MediumCompositor(cfg)(field, _camera(torch.device("cpu")), z, alpha)
         sky = med.sky if med.sky is not None else med.scattering
         (med.transmittance.sum() + med.scattering.sum() + sky.sum()).backward()
-        results.append((med.transmittance, med.scattering, sky, field.b_param.grad))
+        z_grad = z.grad if depth_gradient else torch.zeros(())
+        assert not depth_gradient or z_grad.abs().sum() > 0
+        results.append((med.transmittance, med.scattering, sky, field.b_param.grad, z_grad))
     for ref, got in zip(*results, strict=True):
         torch.testing.assert_close(got, ref, rtol=2e-5, atol=2e-6)
-
-
-def test_gradient_into_depth_takes_the_torch_path() -> None:
-    grid = _grid(torch.float32)
-    zq = _zq(grid).requires_grad_(True)
-    assert not pr.uses_kernel(grid, zq)
-    tau, S, _ = pr.read_pixels(grid, zq)
-    tau.sum().backward()
-    assert zq.grad is not None and zq.grad.abs().sum() > 0
 
 
 def test_without_a_compiler_the_torch_path_serves(monkeypatch) -> None:

@@ -11,7 +11,8 @@
 // Plain C ABI, loaded with ctypes. Layouts (row-major): table [R*(K+1), 9]; rays [4, P] int32 ray
 // index of each neighbour (int32); wgt [4, P]; pix_len [P]; ray_len [R]; zfar [R] (z each ray was marched
 // to); zq [P]; out_tau [P]; out_S [P, 3]; out_L [P, 3] or null (light of the last interval read);
-// g_* the gradients of the outputs; grad_table [R*(K+1), 9] is overwritten.
+// g_* the gradients of the outputs; grad_table [R*(K+1), 9] is overwritten; grad_zq [P] (or
+// null: no gradient into the depth) is overwritten with the gradient of each pixel's depth.
 // Every entry point takes the number of threads. The backward scatters into per-thread tables
 // summed in thread order, so its result does not depend on scheduling.
 
@@ -127,7 +128,7 @@ void forward(int64_t P, int K, int threads, const T* table, const int32_t* rays,
 template <class T>
 void backward(int64_t P, int K, int64_t R, int threads, const T* table, const int32_t* rays,
               const T* wgt, const T* pix_len, const T* ray_len, const T* zfar, const T* zq,
-              const T* g_tau, const T* g_S, const T* g_L, T* grad_table) {
+              const T* g_tau, const T* g_S, const T* g_L, T* grad_table, T* grad_zq) {
     const int64_t n_tab = R * (K + 1) * ROW;
     const int nt = chunk_threads(P, threads);  // the split parallel_chunks will make
     std::vector<std::vector<T>> local(nt > 1 ? nt : 0);
@@ -143,6 +144,7 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
         for (int64_t p = a; p < b; ++p) {
             const T gt = g_tau[p];
             const T gs[3] = {g_S[p * 3], g_S[p * 3 + 1], g_S[p * 3 + 2]};
+            T g_z = 0;
             for (int j = 0; j < 4; ++j) {
                 const int32_t ray = rays[j * P + p];
                 const T w = wgt[j * P + p];
@@ -178,7 +180,12 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
                 }
                 grow[1] += g_tray * f + Tk * sum_lg * f * ef;
                 grow[2] += sum_lg * e;
+                if (grad_zq) {  // f = clamp(zq / zf, 0, 1) * K - k: d f / d zq = K / zf inside
+                    const T zf = std::max(zfar[ray], T(1e-12)), u = zq[p] / zf;
+                    if (u >= T(0) && u <= T(1)) g_z += (g_tray * tau + Tk * tau * ef * sum_lg) * T(K) / zf;
+                }
             }
+            if (grad_zq) grad_zq[p] = g_z;
         }
     });
     for (const std::vector<T>& part : local) {  // in thread order: reproducible sums
@@ -190,7 +197,7 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
 
 extern "C" {
 
-int tdh_readout_abi_version() { return 1; }
+int tdh_readout_abi_version() { return 2; }
 
 void tdh_readout_forward_f32(int64_t P, int K, int threads, const float* table, const int32_t* rays,
                              const float* wgt, const float* pix_len, const float* ray_len,
@@ -210,18 +217,18 @@ void tdh_readout_backward_f32(int64_t P, int K, int64_t R, int threads, const fl
                               const int32_t* rays, const float* wgt, const float* pix_len,
                               const float* ray_len, const float* zfar, const float* zq,
                               const float* g_tau, const float* g_S, const float* g_L,
-                              float* grad_table) {
+                              float* grad_table, float* grad_zq) {
     backward<float>(P, K, R, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, g_tau, g_S, g_L,
-                    grad_table);
+                    grad_table, grad_zq);
 }
 
 void tdh_readout_backward_f64(int64_t P, int K, int64_t R, int threads, const double* table,
                               const int32_t* rays, const double* wgt, const double* pix_len,
                               const double* ray_len, const double* zfar, const double* zq,
                               const double* g_tau, const double* g_S, const double* g_L,
-                              double* grad_table) {
+                              double* grad_table, double* grad_zq) {
     backward<double>(P, K, R, threads, table, rays, wgt, pix_len, ray_len, zfar, zq, g_tau, g_S,
-                     g_L, grad_table);
+                     g_L, grad_table, grad_zq);
 }
 
 }  // extern "C"
