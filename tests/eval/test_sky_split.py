@@ -1,0 +1,88 @@
+"""benchmarks/sky_split.py: restoration split into sky and surfaces by the true depth."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pipelines.engine.trainer import Trainer
+from tests.tiny_scenes import tiny_hazy_scene
+from tridehaze_plugin.cli.train import parse_args
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _module(monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # its sibling modules
+    spec = importlib.util.spec_from_file_location("sky_split", REPO / "benchmarks" / "sky_split.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_regions_add_up_and_psnr_of_known_errors(monkeypatch):
+    mod = _module(monkeypatch)
+    clean = torch.zeros(4, 5, 3)
+    ref = torch.zeros(4, 5, 3)
+    sky = torch.zeros(4, 5, dtype=torch.bool)
+    sky[0] = True  # 5 sky pixels, each off by 0.1 in every channel
+    ref[0] = 0.1
+    ref[1:, :, 0] = 0.01  # 15 surface pixels, off by 0.01 in one channel
+    sums = mod.region_sums(clean, ref, sky)
+    assert sums["sky"][1] == 5 and sums["surface"][1] == 15 and sums["all"][1] == 20
+    assert math.isclose(sums["all"][0], sums["sky"][0] + sums["surface"][0], rel_tol=1e-6)
+    assert math.isclose(mod.psnr_of(sums["sky"]), 20.0, abs_tol=1e-4)  # MSE 0.01
+    assert math.isclose(mod.psnr_of(sums["surface"]), -10 * math.log10(1e-4 / 3), abs_tol=1e-3)
+    assert mod.psnr_of((0.0, 0)) is None
+    assert mod.arm_of("/x/holds/seed7/runs/field/tri-dehaze/tri-dehaze") == "holds"
+    assert mod.arm_of("/x/outputs/myrun") == "myrun"
+
+
+def test_on_a_tiny_field_run(tmp_path):
+    """The sky share is the true depth's, and the whole picture's error is the two regions' sum."""
+    from rich.console import Console
+
+    scene = tiny_hazy_scene(
+        tmp_path / "scene", layout="field", haze="height", seed=2, num_views=6, width=40, height=30,
+        samples=16, num_points=300, test_every=3,
+    )  # fmt: skip
+    argv = ["tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / "runs"), "--max-steps", "4",
+            "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end"]  # fmt: skip
+    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
+    trainer.setup()
+    trainer.train()
+    config = next((tmp_path / "runs").rglob("config.yml"))
+    out = tmp_path / "sky"
+    cmd = [
+        sys.executable,
+        str(REPO / "benchmarks" / "sky_split.py"),
+        "--runs",
+        str(config),
+        "--output",
+        str(out),
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    row = next(r for r in json.loads(out.with_suffix(".json").read_text()) if "scene" in r)
+
+    meta = json.loads((scene / "synth_meta.json").read_text())
+    frames = json.loads((scene / "transforms.json").read_text())
+    test = [f for f in frames["frames"] if f["file_path"] in frames["test_filenames"]]
+    depth = np.stack([np.load(scene / f["gt_depth_file_path"]) for f in test])
+    share = float((depth >= 0.75 * meta["far_bound_m"]).mean())
+    assert 0.05 < share < 0.95  # the field shows both
+    assert math.isclose(row["sky_share"], share, abs_tol=1e-6)
+    for key in ("t0=0", "t0=0.1"):
+        p = row["psnr"][key]
+        mse = {k: 10 ** (-p[k] / 10) for k in ("all", "sky", "surface")}
+        assert math.isclose(mse["all"], share * mse["sky"] + (1 - share) * mse["surface"], rel_tol=1e-3)
+    assert 0.0 <= row["sky_t_model"] <= 1.0 and 0.0 <= row["sky_t_true"] <= 1.0
+    assert "sky T model / true" in out.with_suffix(".md").read_text()
+    assert out.with_suffix(".png").stat().st_size > 0
