@@ -39,7 +39,8 @@ def vanilla_gs() -> TrainerConfig:
         "half) fits both with depth and dark-channel priors, Stage II freezes the medium and "
         "compensates the clean branch's gradient by 1/T (MD-TGC). Differs from the paper "
         "(tri-dehaze-paper) where measured: opaque surfaces, the dark channel as a lower bound, a "
-        "longer Stage I (docs/results/medium_recovery.md)."
+        "longer Stage I, the rendered depth held to the SfM depth and free to move with the haze, "
+        "and the clean render faded to the haze light where T < 0.1 (docs/results/medium_recovery.md)."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -50,10 +51,20 @@ def tri_dehaze() -> TrainerConfig:
     ends in the haze (coverage standing in for haze); ``dcp_bound`` lower-own-light uses the dark
     channel only as the lower bound it is on surfaces without dark pixels, with the medium's own
     light as the airlight; ``freeze_fraction`` 0.5 fits the medium against a densified scene
-    rather than the seed cloud.
+    rather than the seed cloud. The depth holds (``lambda_depth_metric`` 0.05 to the SfM depth's
+    scale, ``composite.depth_gradient``) end each ray at the surface rather than short of it, which
+    puts the sky far, at low transmittance; ``composite.clean_t0`` 0.1, the dark channel's t0, then
+    shows the haze light there instead of the amplified remainder of the clean colour (session 19).
     """
     paper = _paper_pipeline()
-    pipeline = replace(paper, random_background=True, dcp_bound="lower-own-light", freeze_fraction=0.5)
+    pipeline = replace(
+        paper,
+        random_background=True,
+        dcp_bound="lower-own-light",
+        freeze_fraction=0.5,
+        lambda_depth_metric=0.05,
+        composite=replace(paper.composite, depth_gradient=True, clean_t0=0.1),
+    )
     return TrainerConfig(method_name="tri-dehaze", pipeline=pipeline)
 
 
