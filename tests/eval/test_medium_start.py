@@ -2,19 +2,14 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
 import torch
 
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_map
 from pipelines.engine.trainer import Trainer
+from tests.eval.diagnosis_script import run_diagnosis
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 
-REPO = Path(__file__).resolve().parents[2]
 LIGHT_T_MAX = 0.6  # benchmarks/medium_start.py's
 
 
@@ -52,18 +47,7 @@ def test_light_ratio_is_one_for_a_start_at_the_true_light(tmp_path):
     trainer.train()
     config = next((tmp_path / "runs").rglob("run/config.yml"))
     out = tmp_path / "ms"
-    cmd = [
-        sys.executable,
-        str(REPO / "benchmarks" / "medium_start.py"),
-        "--runs",
-        str(config),
-        "--output",
-        str(out),
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    data = json.loads(out.with_suffix(".json").read_text())
-    row = next(r for r in data if "scene" in r)
+    row = run_diagnosis("medium_start.py", [config], out)
     assert abs(row["light_ratio_start"] - 1.0) < 1e-3
     assert 0.2 < row["light_ratio_trained"] < 5.0
     assert max(abs(a - b) for a, b in zip(row["light_start"], light, strict=True)) < 1e-5

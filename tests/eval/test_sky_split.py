@@ -5,18 +5,14 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from pipelines.engine.trainer import Trainer
+from tests.eval.diagnosis_script import REPO, run_diagnosis
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 def _module(monkeypatch):
@@ -60,17 +56,7 @@ def test_on_a_tiny_field_run(tmp_path):
     trainer.train()
     config = next((tmp_path / "runs").rglob("config.yml"))
     out = tmp_path / "sky"
-    cmd = [
-        sys.executable,
-        str(REPO / "benchmarks" / "sky_split.py"),
-        "--runs",
-        str(config),
-        "--output",
-        str(out),
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    row = next(r for r in json.loads(out.with_suffix(".json").read_text()) if "scene" in r)
+    row = run_diagnosis("sky_split.py", [config], out)
 
     meta = json.loads((scene / "synth_meta.json").read_text())
     frames = json.loads((scene / "transforms.json").read_text())
