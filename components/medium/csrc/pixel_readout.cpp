@@ -77,19 +77,21 @@ inline float one_minus_exp_neg(float x) {
 inline double exp_neg(double x) { return std::exp(-x); }
 inline double one_minus_exp_neg(double x) { return -std::expm1(-x); }
 
-// One neighbour's read at zq: the row it lands in and the interval fraction covered.
+// One neighbour's read at zq: the row it lands in, the interval fraction covered and that
+// fraction's derivative in zq (K / zf inside the ray, 0 where the clamp holds it).
 template <class T>
 struct Read {
     const T* row;
-    T f, r;
+    T f, r, df_dz;
 };
 
 template <class T>
 inline Read<T> locate(const T* table, int32_t ray, int K, T z, T zf, T pl, T rl) {
-    T pos = z / std::max(zf, T(1e-12));
-    pos = std::min(std::max(pos, T(0)), T(1)) * T(K);
+    const T zf_safe = std::max(zf, T(1e-12)), u = z / zf_safe;
+    const T pos = std::min(std::max(u, T(0)), T(1)) * T(K);
     const int k = std::min(static_cast<int>(std::floor(pos)), K - 1);
-    return {table + (ray * (K + 1) + k) * ROW, pos - T(k), pl / rl};  // int32: < 2^31 entries (checked)
+    const T df_dz = (u >= T(0) && u <= T(1)) ? T(K) / zf_safe : T(0);
+    return {table + (ray * (K + 1) + k) * ROW, pos - T(k), pl / rl, df_dz};  // int32: < 2^31 entries (checked)
 }
 
 template <class T>
@@ -180,10 +182,7 @@ void backward(int64_t P, int K, int64_t R, int threads, const T* table, const in
                 }
                 grow[1] += g_tray * f + Tk * sum_lg * f * ef;
                 grow[2] += sum_lg * e;
-                if (grad_zq) {  // f = clamp(zq / zf, 0, 1) * K - k: d f / d zq = K / zf inside
-                    const T zf = std::max(zfar[ray], T(1e-12)), u = zq[p] / zf;
-                    if (u >= T(0) && u <= T(1)) g_z += (g_tray * tau + Tk * tau * ef * sum_lg) * T(K) / zf;
-                }
+                g_z += (g_tray * tau + Tk * tau * ef * sum_lg) * rd.df_dz;
             }
             if (grad_zq) grad_zq[p] = g_z;
         }
