@@ -61,19 +61,33 @@ def scene_names() -> list[str]:
     return [f"{layout}-{haze}" for layout, haze in SCENES]
 
 
+def is_dataset(path: Path) -> bool:
+    """A scene folder the runner can train on (td-synth / nerfstudio layout)."""
+    return (path / "transforms.json").is_file()
+
+
+def unknown_scenes(root: Path, names: list[str]) -> list[str]:
+    """The ``names`` that are neither a generated scene of the set nor a dataset already under
+    ``root`` (a user's own hazy scene with haze-free references, e.g. a real photo set hazed by
+    ``td-synth``)."""
+    return [n for n in names if n not in scene_names() and not is_dataset(root / n)]
+
+
 def build(root: Path, names: list[str] | None = None, log=print) -> list[Path]:
-    """Generate the scenes (``names``: a subset) missing under ``root`` (seconds each); returns
-    their folders."""
+    """Generate the set's scenes (``names``: a subset) missing under ``root`` (seconds each);
+    returns their folders, then those of the other named datasets under ``root`` (checked by
+    ``unknown_scenes``). Without ``names``: the generated set only, so the targets keep their
+    meaning."""
     paths = []
     for layout, haze in SCENES:
         path = root / f"{layout}-{haze}"
         if names and path.name not in names:
             continue
-        if not (path / "transforms.json").exists():
+        if not is_dataset(path):
             generate_scene(SceneConfig(output_dir=path, layout=layout, haze=haze, seed=5, **SCENE_SIZE))
             log(f"generated {path.name}")
         paths.append(path)
-    return paths
+    return paths + [root / n for n in dict.fromkeys(names or []) if n not in scene_names()]
 
 
 def variants(methods: list[str], max_steps: int) -> list[Variant]:

@@ -64,21 +64,31 @@ def test_rows_average_seeds_and_targets_name_the_worst_scene():
 
 
 def test_td_bench_restoration_end_to_end(tmp_path):
+    from components.synth.generate import SceneConfig, generate_scene
+
     out = tmp_path / "out"
-    args = ["--set-dir", str(tmp_path / "set"), "--output-dir", str(out), "--scenes", "room-uniform",
+    # a user's own hazy scene beside the generated set (any name, any generator settings)
+    generate_scene(SceneConfig(output_dir=tmp_path / "set" / "my-fog", layout="street", haze="homogeneous",
+                               num_views=6, width=32, height=24, seed=3))  # fmt: skip
+    args = ["--set-dir", str(tmp_path / "set"), "--output-dir", str(out), "--scenes", "room-uniform", "my-fog",
             "--seeds", "1", "2", "--max-steps", "3", "--methods", "vanilla-gs", "tri-dehaze", "--lpips", "off",
             "--train-args=--pipeline.warmup-steps 1 --pipeline.rasterizer.backend torch"]  # fmt: skip
     r = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", *args],
                        capture_output=True, text=True, timeout=600)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
-    assert [p.name for p in (tmp_path / "set").iterdir()] == ["room-uniform"]  # only the subset is built
+    # only the named subset of the generated set is built
+    assert sorted(p.name for p in (tmp_path / "set").iterdir()) == ["my-fog", "room-uniform"]
     summary = json.loads((out / "restoration.json").read_text())
-    (row,) = summary["rows"]
-    assert row["scene"] == "room-uniform" and row["seeds"] == 2 and set(row["per_seed"]) == {"1", "2"}
-    assert row["psnr"] > 5 and row["vanilla-gs"] > 5 and row["dcp_2d"] > 5 and 0 <= row["t_mae"] <= 1
-    assert row["observable"] > 5 and 0 < row["observable_share"] <= 1
-    assert "| room-uniform |" in (out / "restoration.md").read_text()
+    row, mine = summary["rows"]
+    assert summary["scenes"] == ["room-uniform", "my-fog"] and mine["scene"] == "my-fog"
+    for r_ in (row, mine):
+        assert r_["seeds"] == 2 and set(r_["per_seed"]) == {"1", "2"}
+        assert r_["psnr"] > 5 and r_["vanilla-gs"] > 5 and r_["dcp_2d"] > 5 and 0 <= r_["t_mae"] <= 1
+    assert row["scene"] == "room-uniform" and row["observable"] > 5 and 0 < row["observable_share"] <= 1
+    md = (out / "restoration.md").read_text()
+    assert "| room-uniform |" in md and "| my-fog |" in md
     bad = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", "--scenes", "moon-fog",
                           "--set-dir", str(tmp_path / "set2")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert bad.returncode == 2 and "moon-fog" in bad.stderr and "Traceback" not in bad.stderr
+    assert "no dataset" in bad.stderr
     assert not (tmp_path / "set2").exists()

@@ -305,7 +305,8 @@ class RestorationArgs:
     methods: list[str] = field(default_factory=lambda: ["vanilla-gs", "dcp-gs", "tri-dehaze"])
     """Methods to train; the table reports the last one against the others and the 2D baselines."""
     scenes: list[str] = field(default_factory=list)
-    """Names of a subset of the set's scenes (empty: all)."""
+    """Names of a subset of the set's scenes, or of other dataset folders under ``--set-dir`` with
+    haze-free references (your own hazy scenes); empty: the 8 generated scenes."""
     jobs: Annotated[int, Range(1)] = 2
     """Runs in parallel (separate processes)."""
     threads: Annotated[int, Range(1)] = 1
@@ -321,10 +322,12 @@ def restoration(args: RestorationArgs) -> None:
 
     if not args.methods or not args.seeds:
         raise ConfigError("--methods and --seeds need at least one value each")
-    unknown = sorted(set(args.scenes) - set(rb.scene_names()))
+    unknown = rb.unknown_scenes(args.set_dir, args.scenes)
     if unknown:
         raise ConfigError(
-            f"unknown scene(s) {', '.join(unknown)}", fix=f"choose from {', '.join(rb.scene_names())}"
+            f"unknown scene(s) {', '.join(unknown)}: not a generated scene's name and no dataset "
+            f"(transforms.json) under {args.set_dir}",
+            fix=f"choose from {', '.join(rb.scene_names())}, or put the dataset at {args.set_dir}/NAME",
         )
     paths = rb.build(args.set_dir, args.scenes)
     names = [p.name for p in paths]
