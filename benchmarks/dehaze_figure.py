@@ -24,6 +24,9 @@ if str(REPO) not in sys.path:
 from pipelines.engine.metrics import psnr  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
+LABEL_BAR = 18
+"""Height (px) of the white strip above each tile that carries its label."""
+
 
 def _u8(x: torch.Tensor) -> np.ndarray:
     x = x.detach().cpu().float()
@@ -59,16 +62,19 @@ def main() -> None:
             tiles.append((run.config.method_name, _u8(out["clean"]), float(psnr(out["clean"], clean_ref))))
             if run.pipeline.medium.has_medium:
                 T = out["transmittance"]
-        tiles.append(("clean reference", _u8(clean_ref), None))
+        tiles.append((f"clean: {Path(scene).name}", _u8(clean_ref), None))
         if T is not None:
             tiles.append(("transmittance", _u8(T), None))
         imgs = []
         for label, img, p in tiles:
             img = cv2.resize(np.ascontiguousarray(img), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+            # the label on a strip above the tile, so it never hides (or is hidden by) the picture
+            bar = np.full((LABEL_BAR, img.shape[1], 3), 255, np.uint8)
             text = f"{label}" + (f" {p:.1f} dB" if p is not None else "")
-            cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
-            cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-            imgs.append(img)
+            cv2.putText(
+                bar, text, (4, LABEL_BAR - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA
+            )
+            imgs.append(np.concatenate([bar, img], axis=0))
         rows.append(np.concatenate(imgs, axis=1))
         header = Path(scene).name
         print(header, " | ".join(f"{lab}: {p:.2f}" for lab, _, p in tiles if p is not None))
