@@ -9,10 +9,9 @@ import math
 import numpy as np
 import torch
 
-from pipelines.engine.trainer import Trainer
 from tests.eval.diagnosis_script import REPO, run_diagnosis
+from tests.export.tiny_run import train_tiny
 from tests.tiny_scenes import tiny_hazy_scene
-from tridehaze_plugin.cli.train import parse_args
 
 
 def _module(monkeypatch):
@@ -43,18 +42,11 @@ def test_regions_add_up_and_psnr_of_known_errors(monkeypatch):
 
 def test_on_a_tiny_field_run(tmp_path):
     """The sky share is the true depth's, and the whole picture's error is the two regions' sum."""
-    from rich.console import Console
-
     scene = tiny_hazy_scene(
         tmp_path / "scene", layout="field", haze="height", seed=2, num_views=6, width=40, height=30,
         samples=16, num_points=300, test_every=3,
     )  # fmt: skip
-    argv = ["tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / "runs"), "--max-steps", "4",
-            "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end"]  # fmt: skip
-    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
-    trainer.setup()
-    trainer.train()
-    config = next((tmp_path / "runs").rglob("config.yml"))
+    config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
     out = tmp_path / "sky"
     row = run_diagnosis("sky_split.py", [config], out)
 
