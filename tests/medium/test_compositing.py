@@ -391,3 +391,43 @@ def test_scattered_light_of_the_per_pixel_helper(device):
     light = torch.full((H, W, 3), 0.4, device=device)
     med = homogeneous_along_rays(beta, light, cam, _depth_with_edges(device))
     torch.testing.assert_close(med.scattered_light, torch.full((3,), 0.4, device=device))
+
+
+class _RecordingField(AnalyticField):
+    """Homogeneous field whose per-sample extinction and light are leaves, so the test reads the
+    gradient each sample receives."""
+
+    def forward(self, x, dirs):
+        self.points = x.detach()
+        self.beta = torch.full((len(x),), self.b0, device=x.device, requires_grad=True)
+        self.light = torch.full((len(x), 3), self.l0, device=x.device, requires_grad=True)
+        return MediumSample(beta=self.beta, light=self.light)
+
+
+def test_near_gradient_scales_only_the_gradient_of_samples_near_the_camera(device):
+    """``near_gradient``: T and S are unchanged; each sample's gradient (extinction and light) is
+    the plain one times (distance / r)^2 within r = fraction x the median end depth, and untouched
+    beyond."""
+    cam = _camera(device)
+    z = _depth_with_edges(device)
+    alpha = torch.ones_like(z)
+    target = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(3)).to(device)
+    runs = {}
+    for frac in (0.0, 0.3):
+        field = _RecordingField(b0=0.4, light=0.6).to(device)
+        comp = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8, near_gradient=frac))
+        med = comp(field, cam, z, alpha)
+        loss = ((composite(torch.full_like(target, 0.2), med) - target) ** 2).sum()
+        loss.backward()
+        runs[frac] = (med, field.beta.grad, field.light.grad, field.points)
+    (med0, gb0, gl0, pts), (med1, gb1, gl1, _) = runs[0.0], runs[0.3]
+    torch.testing.assert_close(med1.transmittance, med0.transmittance, atol=0, rtol=0)
+    torch.testing.assert_close(med1.scattering, med0.scattering, atol=0, rtol=0)
+    origin = cam.camtoworlds[0, :3, 3]
+    dist = (pts - origin).norm(dim=-1)  # [P]
+    r = 0.3 * float(z.median())
+    expected = (dist / r).square().clamp(max=1.0)  # [P]
+    assert float(expected.min()) < 0.05 and bool((expected == 1.0).any())  # both regimes exercised
+    assert float(gb0.abs().min()) > 0  # every sample's extinction carries a gradient
+    torch.testing.assert_close(gb1, gb0 * expected, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(gl1, gl0 * expected[:, None], atol=1e-6, rtol=1e-5)
