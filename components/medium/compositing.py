@@ -182,6 +182,16 @@ def _pixel_dirs(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
     return d_cam @ c2w[:3, :3].T, c2w[:3, 3]
 
 
+def pixel_rays(
+    cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype
+) -> tuple[Tensor, Tensor]:
+    """Every pixel centre's ray as the compositor marches it: world directions [H, W, 3] with unit
+    camera z (a point at camera z is origin + z * dir) and the origin [3]."""
+    xs = torch.arange(W, device=device, dtype=dtype) + 0.5
+    ys = torch.arange(H, device=device, dtype=dtype) + 0.5
+    return _pixel_dirs(cam, xs, ys)
+
+
 def pixel_path_lengths(cam: Cameras, H: int, W: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     """[H, W] path length per unit z of each pixel-centre ray, sqrt(1 + x^2 + y^2) in normalised
     image coordinates: the rotation leaves lengths alone, so only the intrinsics matter."""
