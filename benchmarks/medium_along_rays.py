@@ -121,6 +121,8 @@ def plot(rows: list[dict], path: Path) -> None:
                 label=f"{r['scene']} s{r['seed']}")  # fmt: skip
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set_yscale("log")
+    ax.set_yticks([0.5, 0.7, 1.0, 1.4, 2.0, 3.0], ["0.5", "0.7", "1", "1.4", "2", "3"])
+    ax.minorticks_off()
     ax.set_xticks(range(1, 5), ["camera", "2nd", "3rd", "surface"])
     ax.set_xlabel("quarter of the path to the true surface")
     ax.set_ylabel("optical depth, trained / true")
