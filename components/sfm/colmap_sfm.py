@@ -57,6 +57,14 @@ class SfmOptions:
     camera_mode: Literal["auto", "single", "per-image"] = "auto"
     """Shared intrinsics: ``auto`` (one camera per image size and EXIF), ``single`` (one camera for
     all photos, e.g. a video), ``per-image``."""
+    focal_factor: float | None = None
+    """A known focal length, as a multiple of each photo's longest side (a 35 mm-equivalent focal
+    length / 36 mm; a 24 mm drone lens: 0.67). Every camera starts there, overriding EXIF.
+    None: EXIF where the photos carry it, else COLMAP's guess of 1.2, which can end far off on
+    forward walks (docs/synth.md: 1.6-3.2x)."""
+    refine_focal: bool = True
+    """Let bundle adjustment refine the focal length; ``--no-refine-focal`` keeps a known
+    ``--focal-factor`` fixed."""
     max_num_features: int = 8192
     """SIFT features per photo."""
     sequential_overlap: int = 10
@@ -83,6 +91,16 @@ class SfmOptions:
             raise ConfigError(f"--sequential-overlap must be at least 1, got {self.sequential_overlap}")
         if self.threads < 1:
             raise ConfigError(f"--threads must be at least 1, got {self.threads}")
+        if self.focal_factor is not None and not 0.05 <= self.focal_factor <= 50:
+            raise ConfigError(
+                f"--focal-factor is the focal length over the longest image side, got {self.focal_factor}",
+                fix="pass e.g. --focal-factor 0.67 for a 24 mm (35 mm-equivalent) lens: 24 / 36",
+            )
+        if not self.refine_focal and self.focal_factor is None:
+            raise ConfigError(
+                "--no-refine-focal keeps a known focal length fixed, but none was given",
+                fix="add --focal-factor F (focal length / longest image side), or drop --no-refine-focal",
+            )
         if self.enhance not in ENHANCE_CHOICES:
             raise ConfigError(
                 f"unknown --enhance {self.enhance!r}", fix=f"use one of {', '.join(ENHANCE_CHOICES)}"
@@ -293,6 +311,8 @@ def _extract_features(
             "per-image": pycolmap.CameraMode.PER_IMAGE,
         }[opts.camera_mode]
         pycolmap.import_images(db_path, image_dir, camera_mode=mode, image_names=names, options=reader)
+        if opts.focal_factor is not None:
+            _set_known_focal(db_path, opts.focal_factor)
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.num_threads = opts.threads
         extraction.max_image_size = opts.max_image_size
@@ -311,6 +331,19 @@ def _extract_features(
         mean_kp = float(np.mean([kp.get(n, 0) for n in names]))
         detail.append(f"{mean_kp:.0f} keypoints per photo")
     return mean_kp
+
+
+def _set_known_focal(db_path: Path, factor: float) -> None:
+    """Every camera in the database starts at focal = factor x its longest side, as a prior."""
+    import pycolmap
+
+    with pycolmap.Database.open(db_path) as db:
+        for cam in db.read_all_cameras():
+            params = np.array(cam.params, dtype=np.float64)
+            params[list(cam.focal_length_idxs())] = factor * max(cam.width, cam.height)
+            cam.params = params
+            cam.has_prior_focal_length = True
+            db.update_camera(cam)
 
 
 def _match(
@@ -366,6 +399,7 @@ def _map(
         mapping.mapper.num_threads = opts.threads
         mapping.mapper.random_seed = opts.seed
         mapping.triangulation.random_seed = opts.seed
+        mapping.ba_refine_focal_length = opts.refine_focal
         mapping.min_model_size = min(mapping.min_model_size, max(2, len(names) // 2))
         sparse_dir = work_dir / "sparse"
         sparse_dir.mkdir(exist_ok=True)

@@ -121,6 +121,12 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys):
     assert "photo folder itself" in _fails(
         ["images", "--data", str(noise), "--output-dir", str(noise)], capsys
     )
+    assert "--focal-factor" in _fails(
+        ["images", "--data", str(noise), "--output-dir", str(out), "--no-refine-focal"], capsys
+    )
+    assert "focal length over the longest image side" in _fails(
+        ["images", "--data", str(noise), "--output-dir", str(out), "--focal-factor", "0"], capsys
+    )
     assert "video file not found" in _fails(
         ["video", "--data", str(tmp_path / "v.mp4"), "--output-dir", str(out)], capsys
     )
@@ -164,6 +170,37 @@ def test_statue_subset_registers_with_enhanced_matching(tmp_path, capsys):
     assert len(scene) == SUBSET and scene.parser == "colmap" and scene.points is not None
     shipped = camera_poses(require_real("statue") / "sparse" / "0")
     agree = compare_cameras(camera_poses(out / "sparse" / "0"), shipped)
+    assert agree.common == SUBSET
+    assert agree.relative_rms < 0.05 and agree.rotation_deg_median < 2.0
+
+
+def test_a_known_focal_length_is_kept_fixed(tmp_path, capsys):
+    """``--focal-factor F --no-refine-focal``: every camera of the output has focal F x its photo's
+    longest side exactly (the statue's own model says about 2.06), and the poses still agree with
+    the shipped model."""
+    photos = statue_subset(tmp_path)
+    out = tmp_path / "ds"
+    factor = 2.06
+    process_main(
+        ["images", "--data", str(photos), "--output-dir", str(out), "--enhance", "clahe",
+         "--max-image-size", "480", "--camera-model", "SIMPLE_PINHOLE", "--threads", "1",
+         "--focal-factor", str(factor), "--no-refine-focal"]
+    )  # fmt: skip
+    assert f"registered {SUBSET}/{SUBSET} images" in capsys.readouterr().out
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(out / "sparse" / "0")
+    assert len(rec.images) == SUBSET
+    for im in rec.images.values():
+        cam = rec.cameras[im.camera_id]
+        w, h = cv2.imread(str(photos / im.name)).shape[1::-1]
+        assert (cam.width, cam.height) == (w, h)
+        np.testing.assert_allclose([cam.focal_length_x, cam.focal_length_y], factor * max(w, h), rtol=1e-9)
+    summary = json.loads((out / "sfm_summary.json").read_text())
+    assert summary["options"]["focal_factor"] == factor and summary["options"]["refine_focal"] is False
+    agree = compare_cameras(
+        camera_poses(out / "sparse" / "0"), camera_poses(require_real("statue") / "sparse" / "0")
+    )
     assert agree.common == SUBSET
     assert agree.relative_rms < 0.05 and agree.rotation_deg_median < 2.0
 
