@@ -95,14 +95,6 @@ class CompositeConfig:
     haze light rather than whatever colour the optimiser left there. Rendering only (the clean,
     not the composite, and never in training); 0: off."""
 
-    near_gradient: Annotated[float, Range(0.0, 1.0)] = 0.0
-    """Radius, as a fraction of the view's median end depth, within which the gradient reaching
-    the medium's samples (extinction and light) is scaled by (distance / radius)^2; the forward
-    pass is unchanged. The medium just in front of a camera is crossed almost only by that
-    camera's rays, so it can take up each view's residual as haze that no other view checks
-    (NeRF's near-camera floaters; Philip & Deschaintre 2023 scale their gradient the same way).
-    0: off."""
-
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
         check_numbers(self, prefix.removeprefix("--"))
@@ -290,9 +282,6 @@ class MediumCompositor:
         sample = field(pts.reshape(-1, 3), unit.reshape(-1, 3))
         beta = sample.beta.reshape(h * w, K)  # [R, K]
         light = sample.light.reshape(h * w, K, 3)  # [R, K, 3]
-        if self.config.near_gradient > 0.0 and torch.is_grad_enabled():
-            g = self.near_gradient_scale(zs * step_len[..., None], z).reshape(h * w, K)  # [R, K]
-            beta, light = scale_gradient(beta, g), scale_gradient(light, g[..., None])
         dz = (zfar / K).reshape(-1)  # [R] interval length in z
         tau = beta * (dz * step_len.reshape(-1))[:, None]  # [R, K] optical depth per interval
         Tau = torch.cat([tau.new_zeros(h * w, 1), torch.cumsum(tau, dim=1)], dim=1)  # [R, K+1]
@@ -326,12 +315,6 @@ class MediumCompositor:
         tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
         return self.with_sky(surface, alpha, sky)
-
-    def near_gradient_scale(self, distance: Tensor, z: Tensor) -> Tensor:
-        """(distance / r)^2 capped at 1 for sample distances [...] from the camera, with r the
-        ``near_gradient`` fraction of the view's median end depth z [H, W] (detached)."""
-        r = self.config.near_gradient * z.detach().median().clamp_min(1e-6)
-        return (distance.detach() / r).square().clamp(max=1.0)
 
     def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and
@@ -390,12 +373,6 @@ def homogeneous_along_rays(
     share = -torch.expm1(-tau)  # [H, W] scattered fraction
     scattered = _scattered_light(share, light)  # [3]
     return MediumRender(T[..., None], light * share[..., None], end_depth, scattered_light=scattered)
-
-
-def scale_gradient(x: Tensor, g: Tensor) -> Tensor:
-    """``x`` in the forward pass, with its gradient multiplied by ``g`` (broadcast to x)."""
-    x0 = x.detach()
-    return x0 + g * (x - x0)
 
 
 def composite(clean: Tensor, medium: MediumRender) -> Tensor:
