@@ -78,11 +78,6 @@ class Pipeline(nn.Module, ABC):
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Trainable parameters by name with their base learning rates."""
 
-    def lr_scales(self, step: int) -> dict[str, float]:
-        """Multipliers on named parameter groups' learning rates at ``step`` (a group left out: 1),
-        e.g. a warm-up for a part that starts training late."""
-        return {}
-
     def after_backward(self, step: int) -> None:  # noqa: B027 - optional hook
         """Hook after ``loss.backward()`` (e.g. collect densification statistics)."""
 

@@ -43,18 +43,12 @@ class Optimizers:
         for opt in self.optimizers.values():
             opt.step()
 
-    def schedule(self, step: int, scales: dict[str, float] | None = None) -> None:
-        """Set learning rates for ``step``: ``means`` decays; each group in ``scales`` is multiplied
-        by its factor (the pipeline's :meth:`~pipelines.engine.contract.Pipeline.lr_scales`)."""
-        scales = scales or {}
-        for name, opt in self.optimizers.items():
-            if name != "means" and name not in scales:
-                continue
-            lr = self.base_lr[name] * scales.get(name, 1.0)
-            if name == "means":
-                lr *= self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
-            for g in opt.param_groups:
-                g["lr"] = lr
+    def schedule(self, step: int) -> None:
+        """Set learning rates for ``step`` (only ``means`` decays)."""
+        if "means" in self.optimizers:
+            ratio = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
+            for g in self.optimizers["means"].param_groups:
+                g["lr"] = self.base_lr["means"] * ratio
 
     def state_dict(self) -> dict:
         return {name: opt.state_dict() for name, opt in self.optimizers.items()}

@@ -119,11 +119,6 @@ class GaussianPipelineConfig(PipelineConfig):
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
-    medium_warmup_fraction: float = 0.0
-    """After the hold, the medium's learning rates ramp linearly from 0 to their values over this
-    fraction of the run. Adam's first steps are full-size whatever the gradient's size, and right
-    after the hold, against a still coarse scene, they moved a room's light 6 % darker (its blue
-    7 %) within 50 steps, where it then stayed (docs/results/medium_recovery.md, session 21). 0: off."""
     init_medium: bool = True
     """Start the medium from the dark channel: airlight from the brightest dark-channel pixels,
     extinction from -ln T_dcp at the seed points' distances (else the medium config's values)."""
@@ -157,11 +152,9 @@ class GaussianPipelineConfig(PipelineConfig):
             )
         for sub in (self.loss, self.composite, self.medium, self.densify, self.rasterizer):
             sub.check_values()
-        fractions = (self.freeze_fraction, self.medium_hold_fraction, self.medium_warmup_fraction)
-        if not all(0.0 <= f <= 1.0 for f in fractions):
+        if not 0.0 <= self.freeze_fraction <= 1.0 or not 0.0 <= self.medium_hold_fraction <= 1.0:
             raise ConfigError(
-                "--pipeline.freeze-fraction, --pipeline.medium-hold-fraction and "
-                "--pipeline.medium-warmup-fraction must be in [0, 1]"
+                "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
             )
 
     def resolve(self, datamanager: DataManager, seed: int) -> tuple[GaussianPipelineConfig, list[Decision]]:
@@ -232,7 +225,6 @@ class GaussianPipeline(Pipeline):
         self.max_steps = max_steps
         self.freeze_step = scaled_step(config.freeze_step, config.freeze_fraction, max_steps)
         self.hold_steps = scaled_step(None, config.medium_hold_fraction, max_steps)
-        self.warmup_steps = scaled_step(None, config.medium_warmup_fraction, max_steps)
         self.rasterizer = config.rasterizer.setup(device=datamanager.device)
         self.loss_fn = config.loss.setup()
         self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
@@ -434,15 +426,6 @@ class GaussianPipeline(Pipeline):
             self.densifier.collect(self._last, self._dens_weight)
         if self._photometric is not None:
             self.densifier.observe_loss(self._photometric)
-
-    def lr_scales(self, step: int) -> dict[str, float]:
-        """The medium's warm-up after its hold (``medium_warmup_fraction``): (k + 1) / n at the k-th
-        trainable step of n."""
-        k = step - self.hold_steps
-        if not 0 <= k < self.warmup_steps:  # held (not trained at all), or warmed up
-            return {}
-        ramp = (k + 1) / self.warmup_steps
-        return {name: ramp for name in self.medium.param_groups()}
 
     def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         self.last_refine = self.densifier.step(step, self.model, optimizers)
