@@ -87,23 +87,21 @@ def observe(view: dict, xyz: np.ndarray, uv: np.ndarray | None = None) -> dict[s
     return {"z": z, "z_true": view["depth"][vc, uc], "T": view["T"][vc, uc], "inside": inside}
 
 
-def known_focal_factor(scene: Path) -> float:
-    """The scene's true focal length over its longest image side (what a user who knows the lens
-    passes as ``--focal-factor``)."""
-    tf = json.loads((scene / "transforms.json").read_text())
-    fl = float(tf.get("fl_x") or tf["frames"][0]["fl_x"])
-    w, h = int(tf.get("w") or tf["frames"][0]["w"]), int(tf.get("h") or tf["frames"][0]["h"])
-    return fl / max(w, h)
+def known_focal_factor(views: dict[str, dict]) -> float:
+    """The true focal length over the longest image side, from :func:`true_views` (what a user who
+    knows the lens passes as ``--focal-factor``)."""
+    view = next(iter(views.values()))
+    return float(view["K"][0, 0]) / max(view["depth"].shape)
 
 
-def run_sfm(scene: Path, work: Path, enhance: str, known_focal: bool = False) -> Path:
-    out = work / f"{scene.name}-{enhance}{'-focal' if known_focal else ''}"
+def run_sfm(scene: Path, work: Path, enhance: str, focal_factor: float | None = None) -> Path:
+    out = work / f"{scene.name}-{enhance}{'' if focal_factor is None else '-focal'}"
     if not (out / "sparse" / "0").is_dir():
         cmd = [sys.executable, "-m", "tridehaze_plugin.cli.process_data", "images", "--data", str(scene / "images"),
                "--output-dir", str(out), "--camera-model", "SIMPLE_PINHOLE", "--threads", "1", "--overwrite",
                "--enhance", enhance]  # fmt: skip
-        if known_focal:
-            cmd += ["--focal-factor", f"{known_focal_factor(scene):.6f}", "--no-refine-focal"]
+        if focal_factor is not None:
+            cmd += ["--focal-factor", f"{focal_factor:.6f}", "--no-refine-focal"]
         subprocess.run(cmd, check=True, cwd=Path(__file__).resolve().parents[1])
     return out / "sparse" / "0"
 
@@ -238,7 +236,8 @@ def main() -> None:
         pixels = sum(v["depth"].size for v in views.values() if v["train"])
         entry = {}
         try:
-            obs, reg = sfm_observations(run_sfm(scene, args.work, args.enhance, args.known_focal), views)
+            focal = known_focal_factor(views) if args.known_focal else None
+            obs, reg = sfm_observations(run_sfm(scene, args.work, args.enhance, focal), views)
             entry["sfm"] = summarise(obs, views, reg, pixels)
         except (subprocess.CalledProcessError, ValueError) as e:
             entry["sfm"] = {"error": str(e)}
