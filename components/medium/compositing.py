@@ -24,10 +24,8 @@ supervised by the depth prior instead (``depth_gradient`` turns the gradient on)
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Annotated, Literal
 
@@ -53,12 +51,6 @@ class CompositeConfig:
 
     num_samples: Annotated[int, Range(1)] = 16
     """K: medium samples per ray between the camera and the surface (far bound for background)."""
-    jitter: bool = False
-    """Training steps evaluate the field at a random point of each of the K intervals (stratified
-    sampling, drawn per coarse ray and interval from the run's seed and the step) instead of at
-    its midpoint; rendering always uses the midpoints. Fixed midpoints sit at the same distances
-    from each camera in every step, so the field is fitted at those shells only and is free
-    between them."""
     ray_stride: Annotated[int | None, Range(1)] = None
     """The medium is marched along one ray per stride x stride pixel block (1 = every pixel);
     None: the stride that gives about ``coarse_rays`` rays, so the medium's cost does not grow with
@@ -237,30 +229,6 @@ class MediumCompositor:
     def __init__(self, config: CompositeConfig) -> None:
         config.check_values()
         self.config = config
-        self._jitter: torch.Generator | None = None
-
-    @contextlib.contextmanager
-    def training_step(self, seed: int, step: int) -> Iterator[None]:
-        """Marches inside are a training step's: jittered sample positions (``jitter``), drawn from
-        (seed, step) alone so that a resumed run draws the same ones."""
-        if not self.config.jitter:
-            yield
-            return
-        self._jitter = torch.Generator(device="cpu").manual_seed(seed * 1_000_003 + step + 7919)
-        try:
-            yield
-        finally:
-            self._jitter = None
-
-    def sample_fractions(self, h: int, w: int, like: Tensor) -> Tensor:
-        """Where each of the K samples sits in its interval, as a fraction of the ray's length:
-        [K] midpoints, or [h, w, K] stratified draws inside :meth:`training_step` with ``jitter``."""
-        K = self.config.num_samples
-        k = torch.arange(K, device=like.device, dtype=like.dtype)
-        if self._jitter is None:
-            return (k + 0.5) / K
-        offsets = torch.rand(h, w, K, generator=self._jitter, dtype=like.dtype)
-        return (k + offsets.to(like.device)) / K
 
     def stride_for(self, height: int, width: int) -> int:
         """Block size of the coarse ray grid for an image of this size."""
@@ -307,7 +275,7 @@ class MediumCompositor:
         ys = (torch.arange(h, device=z.device, dtype=z.dtype) + 0.5) * s
         dirs, origin = _pixel_dirs(camera, xs, ys)  # [h, w, 3], [3]
         step_len = dirs.norm(dim=-1)  # [h, w] path length per unit z
-        u = self.sample_fractions(h, w, z)  # [K] or [h, w, K]
+        u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
         zs = zfar[..., None] * u  # [h, w, K]
         pts = origin + zs[..., None] * dirs[:, :, None, :]  # [h, w, K, 3]
         unit = (dirs / step_len[..., None])[:, :, None, :].expand(-1, -1, K, -1)  # [h, w, K, 3]

@@ -322,7 +322,7 @@ class GaussianPipeline(Pipeline):
         clean = out.rgb[0]  # [H, W, 3]
         depth = out.depth[0]  # [H, W, 1]
         metrics: dict[str, Tensor] = {}  # detached scalars; read by the trainer in one transfer
-        with record_function("td.medium"), self.compositor.training_step(self._seed, step):
+        with record_function("td.medium"):
             med = self._medium(cam, out)
         with record_function("td.composite+loss"):
             if med is None:
