@@ -116,6 +116,11 @@ class MediumConfig(ComponentConfig):
     (the paper's "tri-plane RGB" ablation)."""
     sh_degree: Annotated[int, Range(0, 2)] = 1
     """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
+    light_space: Literal["field", "global"] = "field"
+    """Where the medium light may vary: ``field`` reads it from the field's features like the
+    extinction (it can change from place to place); ``global`` gives every point the same light,
+    varying only with the viewing direction (ambient fog lit from afar), so the light cannot
+    follow the scene's colours. The extinction stays spatial either way."""
     num_frequencies: Annotated[int, Range(0, 32)] = 6
     """Octaves of the ``fourier`` encoder (sin/cos of 2^k pi x)."""
     lr: Annotated[float, NonNegative] = 1e-2
@@ -246,6 +251,10 @@ class MediumHeads(nn.Module):
         n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
         self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
         self.light_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, n_light))
+        # a global light reads one learnt feature vector instead of the point's features
+        self.light_feature = (
+            nn.Parameter(torch.randn(in_dim) * 0.1) if config.light_space == "global" else None
+        )  # [F]
         self.log_kappa = nn.Parameter(torch.zeros(()))
         with torch.no_grad():  # near-uniform start: the last layers barely see the features
             for head in (self.beta_head, self.light_head):
@@ -274,7 +283,10 @@ class MediumHeads(nn.Module):
     def forward(self, feat: Tensor, dirs: Tensor) -> MediumSample:
         """feat: [P, F], dirs: [P, 3] unit -> beta [P], light [P, 3]."""
         beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
-        raw = self.light_head(feat)
+        if self.light_feature is None:
+            raw = self.light_head(feat)  # [P, n_light]
+        else:
+            raw = self.light_head(self.light_feature.to(feat))[None].expand(feat.shape[0], -1)
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]

@@ -148,6 +148,25 @@ def test_sh_light_depends_on_direction(device, backend: str) -> None:
     assert (field(x, d).light - field(x, -d).light).abs().max() > 0.05
 
 
+@pytest.mark.parametrize("backend", ["triplane", "voxel", "mlp", "fourier"])
+def test_global_light_varies_with_direction_only(device, backend: str) -> None:
+    """``light_space global``: one light for every point (per direction); the extinction stays spatial."""
+    field = _make(backend, device, light_space="global", sh_degree=1)
+    _perturb_heads(field)
+    x, _ = _points(device, 256)
+    d = F.normalize(torch.tensor([0.3, -0.2, 1.0], device=device), dim=0).expand_as(x)  # [256, 3]
+    s = field(x, d)
+    torch.testing.assert_close(s.light, s.light[:1].expand_as(s.light))
+    assert s.beta.std() > 1e-3
+    assert (field(x, -d).light - s.light).abs().max() > 0.02  # untrained: < 1e-2 (above)
+    s.light.sum().backward()
+    assert field.heads.light_feature.grad is not None and field.heads.light_feature.grad.abs().sum() > 0
+    spatial = _make(backend, device, sh_degree=1)
+    _perturb_heads(spatial)
+    assert spatial.heads.light_feature is None
+    assert spatial(x, d).light.std(0).max() > 1e-3  # the default field light does vary in space
+
+
 def test_spatial_variation_after_perturbation(device) -> None:
     """Grids and MLPs vary in space once the heads are non-trivial; the constant field never does."""
     x, _ = _points(device, 256)
