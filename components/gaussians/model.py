@@ -267,7 +267,11 @@ class GaussianModel(nn.Module):
     def render_attribute(self, rasterizer: Rasterizer, cameras: Cameras, name: str) -> Tensor:
         """Alpha-blend the per-Gaussian attribute ``name`` [N, D] like a colour, with the geometry of
         :meth:`render` and a zero background: [C, H, W, D]."""
-        attr = self.attribute(name)  # [N, D]
+        return self.render_values(rasterizer, cameras, self.attribute(name))
+
+    def render_values(self, rasterizer: Rasterizer, cameras: Cameras, attr: Tensor) -> Tensor:
+        """Alpha-blend per-Gaussian values ``attr`` [N, D] (differentiable) like a colour, with the
+        geometry of :meth:`render` and a zero background: [C, H, W, D]."""
         return rasterizer.rasterize(
             self.means, self.quats, self.scales, self.opacities, attr,
             cameras.viewmats().to(attr), cameras.Ks().to(attr), int(cameras.width[0]), int(cameras.height[0]),

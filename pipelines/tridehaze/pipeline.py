@@ -93,6 +93,12 @@ class GaussianPipelineConfig(PipelineConfig):
     """Weight of the log-depth L1 against a pseudo-depth in the scene's own scale (the ``sfm``
     prior only; the others are relative); 0 = off. The Pearson term cannot see the depth's scale,
     and a march to too short a depth needs too little haze (docs/results/medium_recovery.md)."""
+    lambda_depth_spread: Annotated[float, NonNegative] = 0.0
+    """Weight of the depth spread along each ray: the variance of the blended Gaussians' depths
+    over the squared mean depth, on pixels covered at least half. The medium is marched to the
+    blend's mean depth, which Gaussians spread in front of a surface pull short (the shorter the
+    march, the less haze, and the scene takes up the rest); this draws them onto the surface,
+    like Mip-NeRF 360's distortion loss. It costs a second, one-channel rasterization; 0 = off."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -352,6 +358,10 @@ class GaussianPipeline(Pipeline):
             metric = log_depth_l1(depth[..., 0], prior.depth, prior.depth_valid)
             loss = loss + cfg.lambda_depth_metric * metric
             metrics["depth_log_l1"] = metric.detach()
+        if cfg.lambda_depth_spread > 0:
+            spread = self._depth_spread(cam, out)
+            loss = loss + cfg.lambda_depth_spread * spread
+            metrics["depth_spread"] = spread.detach()
         if med is not None:
             loss = loss + self._medium_priors(step, stage, target, med, prior, metrics)
         self._last = out
@@ -387,6 +397,18 @@ class GaussianPipeline(Pipeline):
             loss = loss + reg
         metrics["mean_T"] = T.detach().mean()
         return loss
+
+    def _depth_spread(self, cam: Cameras, out: RasterizeOutput) -> Tensor:
+        """Mean of Var[z] / E[z]^2 over the pixels covered at least half (Gaussian centres' camera z,
+        blended with the render's weights)."""
+        viewmat = cam.viewmats()[0].to(self.model.means)  # [4, 4] world -> camera
+        z = self.model.means @ viewmat[2, :3] + viewmat[2, 3]  # [N] camera z of each centre
+        second = self.model.render_values(self.rasterizer, cam, (z * z)[:, None])[0]  # [H, W, 1]
+        alpha, mean = out.alpha[0], out.depth[0]  # [H, W, 1]: mean = E[z] (depth_accum / alpha)
+        covered = alpha > 0.5
+        var = second / alpha.clamp_min(1e-6) - mean * mean  # [H, W, 1]
+        ratio = var.clamp_min(0.0) / (mean * mean).clamp_min(1e-8)
+        return ratio[covered].mean() if bool(covered.any()) else ratio.sum() * 0.0
 
     @staticmethod
     def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:
