@@ -1,5 +1,5 @@
 """Depth regularisers for the Gaussian depth render: Pearson correlation, edge-aware smoothness,
-and a log-depth L1 for priors that carry the scene's own scale.
+a log-depth L1 for priors that carry the scene's own scale, and the depth spread along each ray.
 
 The first two are scale-free on purpose: most pseudo-depth priors (files, dark channel) are only
 defined up to an unknown affine map. Sparse SfM depth is the exception: the points live in the
@@ -89,3 +89,15 @@ def log_depth_l1(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: f
     q = torch.where(valid, prior.to(pred.dtype), torch.ones_like(pred))
     err = (pred.clamp_min(eps).log() - q.log()).abs()  # [H, W]
     return _zero_if_few(_masked_mean(err, w, count.clamp_min(1.0)), count)
+
+
+def depth_spread(mean: Tensor, second: Tensor, alpha: Tensor, min_alpha: float = 0.5) -> Tensor:
+    """Mean over pixels covered at least ``min_alpha`` of Var[z] / E[z]^2, the squared coefficient
+    of variation of the depths blended into each pixel: ``mean`` = E[z] (the normalised depth
+    render), ``second`` = sum of w z^2 (z^2 blended like a colour, not normalised), ``alpha`` =
+    sum of w; all [H, W] or [H, W, 1]. Scale-free, 0 for a pixel whose weight sits at one depth.
+    Like Mip-NeRF 360's distortion loss it draws the Gaussians along a ray onto one surface."""
+    w = (alpha > min_alpha).to(mean.dtype)
+    var = second / alpha.clamp_min(1e-6) - mean * mean
+    ratio = var.clamp_min(0.0) / (mean * mean).clamp_min(1e-8)
+    return _masked_mean(ratio, w, w.sum().clamp_min(1.0))

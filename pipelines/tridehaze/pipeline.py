@@ -19,7 +19,7 @@ from components.data.cameras import Cameras
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
-from components.losses.depth import edge_aware_smoothness, log_depth_l1, pearson_depth_loss
+from components.losses.depth import depth_spread, edge_aware_smoothness, log_depth_l1, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
@@ -399,16 +399,11 @@ class GaussianPipeline(Pipeline):
         return loss
 
     def _depth_spread(self, cam: Cameras, out: RasterizeOutput) -> Tensor:
-        """Mean of Var[z] / E[z]^2 over the pixels covered at least half (Gaussian centres' camera z,
-        blended with the render's weights)."""
+        """The depth spread of the training view's render (the Gaussian centres' camera z)."""
         viewmat = cam.viewmats()[0].to(self.model.means)  # [4, 4] world -> camera
         z = self.model.means @ viewmat[2, :3] + viewmat[2, 3]  # [N] camera z of each centre
         second = self.model.render_values(self.rasterizer, cam, (z * z)[:, None])[0]  # [H, W, 1]
-        alpha, mean = out.alpha[0], out.depth[0]  # [H, W, 1]: mean = E[z] (depth_accum / alpha)
-        covered = alpha > 0.5
-        var = second / alpha.clamp_min(1e-6) - mean * mean  # [H, W, 1]
-        ratio = var.clamp_min(0.0) / (mean * mean).clamp_min(1e-8)
-        return ratio[covered].mean() if bool(covered.any()) else ratio.sum() * 0.0
+        return depth_spread(out.depth[0], second, out.alpha[0])
 
     @staticmethod
     def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:

@@ -125,3 +125,47 @@ def test_log_depth_l1_is_the_mean_relative_error_over_valid_pixels():
     few = torch.zeros(8, 8, dtype=torch.bool)
     few.view(-1)[: MIN_VALID_PIXELS - 1] = True
     assert log_depth_l1(pred, prior, few).item() == 0.0
+
+
+def _two_gaussians(z_back: float) -> dict:
+    """Two large, nearly opaque Gaussians straight ahead of a camera at the origin, at z 2 and z_back."""
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, z_back]], requires_grad=True)
+    return {
+        "means": means,
+        "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2),
+        "scales": torch.full((2, 3), 1.0),
+        "opacities": torch.tensor([0.6, 0.9]),
+    }
+
+
+def _spread(g: dict) -> torch.Tensor:
+    from components.losses.depth import depth_spread
+    from components.rasterizers.torch_reference import TorchRasterizer
+
+    rast = TorchRasterizer()
+    K = torch.tensor([[[20.0, 0.0, 8.0], [0.0, 20.0, 8.0], [0.0, 0.0, 1.0]]])  # [1, 3, 3]
+    view = torch.eye(4)[None]  # [1, 4, 4]
+    args = (g["means"], g["quats"], g["scales"], g["opacities"])
+    out = rast.rasterize(*args, torch.full((2, 3), 0.5), view, K, 16, 16)
+    z = g["means"][:, 2]  # [2] camera z (identity view)
+    second = rast.rasterize(*args, (z * z)[:, None], view, K, 16, 16, background=torch.zeros(1)).rgb[0]
+    return depth_spread(out.depth[0], second, out.alpha[0])
+
+
+def test_depth_spread_is_zero_on_one_surface_and_grows_with_the_gap():
+    one = _spread(_two_gaussians(2.0))
+    near, far = _spread(_two_gaussians(2.5)), _spread(_two_gaussians(4.0))
+    assert one.item() == pytest.approx(0.0, abs=1e-5)
+    assert 0.0 < near.item() < far.item()
+    # two point depths with blend weights a, b: Var / E^2 = a b (z1 - z2)^2 / (a z1 + b z2)^2, a + b = 1;
+    # at the image centre a = 0.6 / (0.6 + 0.4 * 0.9), b = 0.36 / 0.96; the mean over pixels is lower
+    a, b = 0.6 / 0.96, 0.36 / 0.96
+    centre = a * b * 4.0 / (a * 2.0 + b * 4.0) ** 2
+    assert 0.3 * centre < far.item() <= centre * 1.001
+
+
+def test_depth_spread_gradient_draws_the_gaussians_together():
+    g = _two_gaussians(4.0)
+    _spread(g).backward()
+    dz = g["means"].grad[:, 2]
+    assert dz[0] < 0 < dz[1]  # descent moves the front one back and the back one forward
