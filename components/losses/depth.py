@@ -91,13 +91,16 @@ def log_depth_l1(pred: Tensor, prior: Tensor, mask: Tensor | None = None, eps: f
     return _zero_if_few(_masked_mean(err, w, count.clamp_min(1.0)), count)
 
 
-def depth_spread(mean: Tensor, second: Tensor, alpha: Tensor, min_alpha: float = 0.5) -> Tensor:
+def depth_spread(moments: Tensor, min_alpha: float = 0.5) -> Tensor:
     """Mean over pixels covered at least ``min_alpha`` of Var[z] / E[z]^2, the squared coefficient
-    of variation of the depths blended into each pixel: ``mean`` = E[z] (the normalised depth
-    render), ``second`` = sum of w z^2 (z^2 blended like a colour, not normalised), ``alpha`` =
-    sum of w; all [H, W] or [H, W, 1]. Scale-free, 0 for a pixel whose weight sits at one depth.
-    Like Mip-NeRF 360's distortion loss it draws the Gaussians along a ray onto one surface."""
-    w = (alpha > min_alpha).to(mean.dtype)
-    var = second / alpha.clamp_min(1e-6) - mean * mean
+    of variation of the depths blended into each pixel. ``moments`` [H, W, 3] holds the blended
+    sums of 1, z and z^2 (alpha, alpha E[z], alpha E[z^2]: the values rendered like a colour on a
+    zero background). Scale-free, 0 for a pixel whose weight sits at one depth. Like Mip-NeRF 360's
+    distortion loss it draws the Gaussians along a ray onto one surface."""
+    alpha, first, second = moments.unbind(-1)  # [H, W] each
+    w = (alpha > min_alpha).to(moments.dtype)
+    a = alpha.clamp_min(1e-6)
+    mean = first / a
+    var = second / a - mean * mean
     ratio = var.clamp_min(0.0) / (mean * mean).clamp_min(1e-8)
     return _masked_mean(ratio, w, w.sum().clamp_min(1.0))

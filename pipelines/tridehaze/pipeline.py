@@ -98,7 +98,8 @@ class GaussianPipelineConfig(PipelineConfig):
     over the squared mean depth, on pixels covered at least half. The medium is marched to the
     blend's mean depth, which Gaussians spread in front of a surface pull short (the shorter the
     march, the less haze, and the scene takes up the rest); this draws them onto the surface,
-    like Mip-NeRF 360's distortion loss. It costs a second, one-channel rasterization; 0 = off."""
+    like Mip-NeRF 360's distortion loss. It costs a second rasterization of three channels (kept
+    out of densification's statistics); 0 = off."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -359,7 +360,7 @@ class GaussianPipeline(Pipeline):
             loss = loss + cfg.lambda_depth_metric * metric
             metrics["depth_log_l1"] = metric.detach()
         if cfg.lambda_depth_spread > 0:
-            spread = self._depth_spread(cam, out)
+            spread = self._depth_spread(cam)
             loss = loss + cfg.lambda_depth_spread * spread
             metrics["depth_spread"] = spread.detach()
         if med is not None:
@@ -398,12 +399,14 @@ class GaussianPipeline(Pipeline):
         metrics["mean_T"] = T.detach().mean()
         return loss
 
-    def _depth_spread(self, cam: Cameras, out: RasterizeOutput) -> Tensor:
-        """The depth spread of the training view's render (the Gaussian centres' camera z)."""
+    def _depth_spread(self, cam: Cameras) -> Tensor:
+        """The depth spread of the training view (the Gaussian centres' camera z), from a pass of its
+        own: its gradient reaches the Gaussians but not the colour pass's screen-space gradients, so
+        it does not drive densification."""
         viewmat = cam.viewmats()[0].to(self.model.means)  # [4, 4] world -> camera
         z = self.model.means @ viewmat[2, :3] + viewmat[2, 3]  # [N] camera z of each centre
-        second = self.model.render_values(self.rasterizer, cam, (z * z)[:, None])[0]  # [H, W, 1]
-        return depth_spread(out.depth[0], second, out.alpha[0])
+        values = torch.stack([torch.ones_like(z), z, z * z], dim=-1)  # [N, 3]
+        return depth_spread(self.model.render_values(self.rasterizer, cam, values)[0])
 
     @staticmethod
     def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:

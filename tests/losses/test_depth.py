@@ -145,11 +145,10 @@ def _spread(g: dict) -> torch.Tensor:
     rast = TorchRasterizer()
     K = torch.tensor([[[20.0, 0.0, 8.0], [0.0, 20.0, 8.0], [0.0, 0.0, 1.0]]])  # [1, 3, 3]
     view = torch.eye(4)[None]  # [1, 4, 4]
-    args = (g["means"], g["quats"], g["scales"], g["opacities"])
-    out = rast.rasterize(*args, torch.full((2, 3), 0.5), view, K, 16, 16)
     z = g["means"][:, 2]  # [2] camera z (identity view)
-    second = rast.rasterize(*args, (z * z)[:, None], view, K, 16, 16, background=torch.zeros(1)).rgb[0]
-    return depth_spread(out.depth[0], second, out.alpha[0])
+    values = torch.stack([torch.ones_like(z), z, z * z], -1)  # [2, 3]
+    args = (g["means"], g["quats"], g["scales"], g["opacities"], values, view, K, 16, 16)
+    return depth_spread(rast.rasterize(*args, background=torch.zeros(3)).rgb[0])
 
 
 def test_depth_spread_is_zero_on_one_surface_and_grows_with_the_gap():
