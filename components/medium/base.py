@@ -116,11 +116,13 @@ class MediumConfig(ComponentConfig):
     (the paper's "tri-plane RGB" ablation)."""
     sh_degree: Annotated[int, Range(0, 2)] = 1
     """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
-    light_space: Literal["field", "global"] = "field"
+    light_space: Literal["field", "smooth", "global"] = "field"
     """Where the medium light may vary: ``field`` reads it from the field's features like the
-    extinction (it can change from place to place); ``global`` gives every point the same light,
-    varying only with the viewing direction (ambient fog lit from afar), so the light cannot
-    follow the scene's colours. The extinction stays spatial either way."""
+    extinction (it can change from cell to cell); ``smooth`` from a small MLP of the point's box
+    coordinates alone (a slow variation, e.g. dimmer near the ground or deeper under water);
+    ``global`` gives every point the same light. The light varies with the viewing direction in
+    all three, and the extinction stays a field. The coarser forms cannot follow the scene's
+    colours (docs/results/medium_recovery.md, session 23)."""
     num_frequencies: Annotated[int, Range(0, 32)] = 6
     """Octaves of the ``fourier`` encoder (sin/cos of 2^k pi x)."""
     lr: Annotated[float, NonNegative] = 1e-2
@@ -250,10 +252,12 @@ class MediumHeads(nn.Module):
         self.sh_degree = int(config.sh_degree)
         n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
         self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
-        self.light_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, n_light))
+        self.light_space = config.light_space
+        light_in = 3 if self.light_space == "smooth" else in_dim  # smooth: box coordinates
+        self.light_head = nn.Sequential(nn.Linear(light_in, h), nn.ReLU(), nn.Linear(h, n_light))
         # a global light reads one learnt feature vector instead of the point's features
         self.light_feature = (
-            nn.Parameter(torch.randn(in_dim) * 0.1) if config.light_space == "global" else None
+            nn.Parameter(torch.randn(in_dim) * 0.1) if self.light_space == "global" else None
         )  # [F]
         self.log_kappa = nn.Parameter(torch.zeros(()))
         with torch.no_grad():  # near-uniform start: the last layers barely see the features
@@ -280,13 +284,18 @@ class MediumHeads(nn.Module):
     def kappa(self) -> Tensor:
         return self.log_kappa.exp()
 
-    def forward(self, feat: Tensor, dirs: Tensor) -> MediumSample:
-        """feat: [P, F], dirs: [P, 3] unit -> beta [P], light [P, 3]."""
+    def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
+        """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)
+        -> beta [P], light [P, 3]."""
         beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
-        if self.light_feature is None:
-            raw = self.light_head(feat)  # [P, n_light]
-        else:
+        if self.light_space == "global":
             raw = self.light_head(self.light_feature.to(feat))[None].expand(feat.shape[0], -1)
+        elif self.light_space == "smooth":
+            if coords is None:
+                raise ValueError("a smooth medium light needs the points' box coordinates")
+            raw = self.light_head(coords.to(feat))  # [P, n_light]
+        else:
+            raw = self.light_head(feat)  # [P, n_light]
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]

@@ -33,7 +33,8 @@ class HeadedField(MediumField):
         raise NotImplementedError
 
     def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:
-        return self.heads(self.encode(x), dirs)
+        coords = self.bounds.normalize(x) if self.heads.light_space == "smooth" else None  # [P, 3]
+        return self.heads(self.encode(x), dirs, coords)
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """One entry per parameter (one optimizer each); only log(kappa) has its own lr."""

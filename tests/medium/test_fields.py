@@ -167,6 +167,24 @@ def test_global_light_varies_with_direction_only(device, backend: str) -> None:
     assert spatial(x, d).light.std(0).max() > 1e-3  # the default field light does vary in space
 
 
+@pytest.mark.parametrize("backend", ["triplane", "mlp", "constant"])
+def test_smooth_light_reads_the_position_not_the_features(device, backend: str) -> None:
+    """``light_space smooth``: the light is a function of the box coordinates and the direction."""
+    field = _make(backend, device, light_space="smooth", sh_degree=1)
+    _perturb_heads(field)
+    x, _ = _points(device, 256)
+    d = torch.tensor([0.0, 0.0, 1.0], device=device).expand_as(x)
+    s = field(x, d)
+    assert s.light.std(0).max() > 1e-3  # varies in space, even on the constant field
+    with torch.no_grad():  # move every parameter but the light head's: the light must not change
+        for name, p in field.named_parameters():
+            if not name.startswith("heads.light_head"):
+                p.add_(torch.randn_like(p))
+    moved = field(x, d)
+    assert (moved.beta - s.beta).abs().max() > 1e-3
+    torch.testing.assert_close(moved.light, s.light)
+
+
 def test_spatial_variation_after_perturbation(device) -> None:
     """Grids and MLPs vary in space once the heads are non-trivial; the constant field never does."""
     x, _ = _points(device, 256)
