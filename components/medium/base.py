@@ -111,9 +111,10 @@ class MediumConfig(ComponentConfig):
     """Feature channels per plane cell (the tri-plane feature is 3 * channels wide)."""
     hidden: Annotated[int, Range(1, 4096)] = 64
     """Width of the two-layer heads (and of the coordinate MLPs)."""
-    light: Literal["sh", "rgb"] = "sh"
-    """Medium light: direction-dependent spherical harmonics, or a direction-free RGB colour
-    (the paper's "tri-plane RGB" ablation)."""
+    light: Literal["sh", "rgb", "mlp"] = "sh"
+    """Medium light: direction-dependent spherical harmonics, a direction-free RGB colour (the
+    paper's "tri-plane RGB" ablation), or ``mlp``: the light head also reads a Fourier encoding of
+    the direction, for a sharper dependence than SH (a forward-scattering glow towards the sun)."""
     sh_degree: Annotated[int, Range(0, 2)] = 1
     """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
     light_space: Literal["field", "smooth", "global"] = "field"
@@ -240,6 +241,17 @@ class MediumField(nn.Module):
         return None
 
 
+DIR_OCTAVES = 3
+"""Octaves of the direction encoding of the ``mlp`` light (sin / cos of 2^k pi v, k < 3)."""
+DIR_ENCODING_DIM = 3 + 6 * DIR_OCTAVES
+
+
+def encode_direction(dirs: Tensor) -> Tensor:
+    """Unit directions [P, 3] -> [P, 3 + 6 * DIR_OCTAVES]: v with sin and cos of 2^k pi v."""
+    scaled = torch.cat([dirs * (math.pi * 2.0**k) for k in range(DIR_OCTAVES)], dim=-1)  # [P, 3K]
+    return torch.cat([dirs, scaled.sin(), scaled.cos()], dim=-1)
+
+
 class MediumHeads(nn.Module):
     """Two-layer heads from a feature vector to (beta, L); the global kappa lives here too."""
 
@@ -251,9 +263,10 @@ class MediumHeads(nn.Module):
         config.check_values()
         self.sh_degree = int(config.sh_degree)
         n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
+        dir_in = DIR_ENCODING_DIM if self.light_mode == "mlp" else 0
         self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
         self.light_space = config.light_space
-        light_in = 3 if self.light_space == "smooth" else in_dim  # smooth: box coordinates
+        light_in = (3 if self.light_space == "smooth" else in_dim) + dir_in  # smooth: box coordinates
         self.light_head = nn.Sequential(nn.Linear(light_in, h), nn.ReLU(), nn.Linear(h, n_light))
         # a global light reads one learnt feature vector instead of the point's features
         self.light_feature = (
@@ -289,13 +302,16 @@ class MediumHeads(nn.Module):
         -> beta [P], light [P, 3]."""
         beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
         if self.light_space == "global":
-            raw = self.light_head(self.light_feature.to(feat))[None].expand(feat.shape[0], -1)
+            light_in = self.light_feature.to(feat)[None].expand(feat.shape[0], -1)  # [P, F]
         elif self.light_space == "smooth":
             if coords is None:
                 raise ValueError("a smooth medium light needs the points' box coordinates")
-            raw = self.light_head(coords.to(feat))  # [P, n_light]
+            light_in = coords.to(feat)  # [P, 3]
         else:
-            raw = self.light_head(feat)  # [P, n_light]
+            light_in = feat
+        if self.light_mode == "mlp":
+            light_in = torch.cat([light_in, encode_direction(dirs.to(feat))], dim=-1)
+        raw = self.light_head(light_in)  # [P, n_light]
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]

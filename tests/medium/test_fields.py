@@ -48,7 +48,7 @@ def test_registry_builds_each_backend(device, backend: str) -> None:
     assert field.is_field == field.has_medium == (backend != "none")
 
 
-@pytest.mark.parametrize("light", ["sh", "rgb"])
+@pytest.mark.parametrize("light", ["sh", "rgb", "mlp"])
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_shapes_and_ranges(device, backend: str, light: str) -> None:
     field = _make(backend, device, light=light)
@@ -74,7 +74,7 @@ def test_none_is_zero_and_parameter_free(device) -> None:
     assert field.param_groups() == {} and field.regularizer() is None
 
 
-@pytest.mark.parametrize("light", ["sh", "rgb"])
+@pytest.mark.parametrize("light", ["sh", "rgb", "mlp"])
 @pytest.mark.parametrize("backend", FIELDS)
 def test_initialize_is_uniform(device, backend: str, light: str) -> None:
     """Last layers start ~0.01-scaled, so the random features leave < 1e-3 of variation."""
@@ -183,6 +183,33 @@ def test_smooth_light_reads_the_position_not_the_features(device, backend: str) 
     moved = field(x, d)
     assert (moved.beta - s.beta).abs().max() > 1e-3
     torch.testing.assert_close(moved.light, s.light)
+
+
+def test_mlp_light_can_be_sharper_than_sh1(device) -> None:
+    """``light mlp`` (on a global light, which cannot fit each point apart): a near-uniform start,
+    then a glow around one direction that SH order 1 cannot follow, fitted in 200 steps."""
+    space = "global"
+    field = _make("constant", device, light="mlp", light_space=space, hidden=32)
+    x, d = _points(device, 512)
+    s0 = field(x, d).light
+    assert (s0 - s0.mean(0)).abs().max() < 2e-2  # near-uniform start
+    sun = F.normalize(torch.tensor([1.0, 0.5, 0.2], device=device), dim=0)
+    glow = ((d @ sun).clamp_min(0.0) ** 16)[:, None]  # [P, 1]: a lobe of about 25 degrees
+    target = 0.4 + 0.5 * glow
+    opt = torch.optim.Adam(field.parameters(), lr=1e-2)
+    for _ in range(200):
+        opt.zero_grad()
+        loss = (field(x, d).light - target).square().mean()
+        loss.backward()
+        opt.step()
+    sh1 = _make("constant", device, light="sh", sh_degree=1, light_space=space, hidden=32)
+    opt = torch.optim.Adam(sh1.parameters(), lr=1e-2)
+    for _ in range(200):
+        opt.zero_grad()
+        ref = (sh1(x, d).light - target).square().mean()
+        ref.backward()
+        opt.step()
+    assert loss.item() < 0.5 * ref.item()
 
 
 def test_spatial_variation_after_perturbation(device) -> None:
