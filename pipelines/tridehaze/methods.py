@@ -40,7 +40,8 @@ def vanilla_gs() -> TrainerConfig:
         "compensates the clean branch's gradient by 1/T (MD-TGC). Differs from the paper "
         "(tri-dehaze-paper) where measured: opaque surfaces, the dark channel as a lower bound, a "
         "longer Stage I, the rendered depth held to the SfM depth and free to move with the haze, "
-        "and the clean render faded to the haze light where T < 0.1 (docs/results/medium_recovery.md)."
+        "the clean render faded to the haze light where T < 0.1, and one medium light for the "
+        "whole scene with a sharper direction model (docs/results/medium_recovery.md)."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -55,6 +56,9 @@ def tri_dehaze() -> TrainerConfig:
     scale, ``composite.depth_gradient``) end each ray at the surface rather than short of it, which
     puts the sky far, at low transmittance; ``composite.clean_t0`` 0.1, the dark channel's t0, then
     shows the haze light there instead of the amplified remainder of the clean colour (session 19).
+    The medium light is one light for the whole scene (``light_space`` global), with a direction
+    model sharper than SH (``light`` mlp): a light that may vary from cell to cell follows the
+    Gaussians' colours, and SH order 1 cannot hold a sun's forward-scattering glow (session 23).
     """
     paper = _paper_pipeline()
     pipeline = replace(
@@ -64,6 +68,7 @@ def tri_dehaze() -> TrainerConfig:
         freeze_fraction=0.5,
         lambda_depth_metric=0.05,
         composite=replace(paper.composite, depth_gradient=True, clean_t0=0.1),
+        medium=replace(paper.medium, light_space="global", light="mlp"),
     )
     return TrainerConfig(method_name="tri-dehaze", pipeline=pipeline)
 
