@@ -297,10 +297,9 @@ class MediumHeads(nn.Module):
     def kappa(self) -> Tensor:
         return self.log_kappa.exp()
 
-    def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
-        """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)
-        -> beta [P], light [P, 3]."""
-        beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
+    def _light_input(self, feat: Tensor, dirs: Tensor, coords: Tensor | None) -> Tensor:
+        """The light head's input per point [P, *]: the field's features, the box coordinates or
+        the global feature, with the encoded direction appended for the ``mlp`` light."""
         if self.light_space == "global":
             light_in = self.light_feature.to(feat)[None].expand(feat.shape[0], -1)  # [P, F]
         elif self.light_space == "smooth":
@@ -311,7 +310,17 @@ class MediumHeads(nn.Module):
             light_in = feat
         if self.light_mode == "mlp":
             light_in = torch.cat([light_in, encode_direction(dirs.to(feat))], dim=-1)
-        raw = self.light_head(light_in)  # [P, n_light]
+        return light_in
+
+    def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
+        """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)
+        -> beta [P], light [P, 3]."""
+        beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
+        if self.light_space == "global" and self.light_mode != "mlp":
+            # one input for every point: evaluate the head once
+            raw = self.light_head(self.light_feature.to(feat))[None].expand(feat.shape[0], -1)
+        else:
+            raw = self.light_head(self._light_input(feat, dirs, coords))  # [P, n_light]
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]
