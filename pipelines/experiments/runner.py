@@ -2,8 +2,9 @@
 
 Each (scene, variant) trains into ``OUT/runs/<scene>/<method>/<variant>/`` and its numbers land in
 ``OUT/results/<scene>/<variant>.json`` (written last, atomically): a result file whose signature
-(method, overrides, steps, seed, extra arguments) matches is a finished run and is skipped; a run
-folder with a checkpoint but no result (killed, Ctrl-C) is continued with ``td-train --resume``.
+(method, overrides, steps, seed, extra arguments, and the fingerprint of the framework's source)
+matches is a finished run and is skipped; a run folder with a checkpoint but no result (killed,
+Ctrl-C) is continued with ``td-train --resume``. Runs made by other code are run again.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import Any
 from pipelines.engine.checkpoint import latest_checkpoint
 from pipelines.engine.run_config import write_text_atomic
 from pipelines.experiments.ablation import Variant
+from pipelines.experiments.code_version import code_fingerprint
 
 RUNNER_FLAGS = ("--data", "--output-dir", "--timestamp", "--max-steps", "--seed", "--threads")
 """Flags the runner sets itself after a variant's overrides (a variant setting one would be
@@ -106,18 +108,34 @@ class AblationRunner:
             "max_steps": self.steps(job),
             "seed": o.seed,
             "extra": list(o.extra),
+            "code": code_fingerprint(),
         }
 
-    def finished(self, job: Job) -> dict[str, Any] | None:
-        """The stored result when it exists and was made with the same settings, else None."""
+    def _stored(self, job: Job) -> dict[str, Any] | None:
         path = self.result_path(job)
         if not path.is_file():
             return None
         try:
-            result = json.loads(path.read_text())
+            return json.loads(path.read_text())
         except (OSError, json.JSONDecodeError):
             return None
-        return result if result.get("signature") == self.signature(job) else None
+
+    def finished(self, job: Job) -> dict[str, Any] | None:
+        """The stored result when it exists and was made with the same settings and code, else None."""
+        result = self._stored(job)
+        return result if result is not None and result.get("signature") == self.signature(job) else None
+
+    def state(self, job: Job) -> str:
+        """``done``, ``other code`` (a stored result of these settings made by other code: it is run
+        again) or ``to run``, for dry runs."""
+        if self.finished(job) is not None:
+            return "done"
+        stored = (self._stored(job) or {}).get("signature") or {}
+        ours = self.signature(job)
+        same_settings = {k: v for k, v in stored.items() if k != "code"} == {
+            k: v for k, v in ours.items() if k != "code"
+        }
+        return "other code" if stored and same_settings else "to run"
 
     # ------------------------------------------------------------------------------ running
     def _call(self, cmd: list[str], log) -> int:

@@ -170,3 +170,50 @@ def test_a_variant_cannot_set_a_flag_the_runner_overrules(flag, tmp_path):
     with pytest.raises(ValueError, match=f"{flag.split('=')[0]} in its overrides would be overruled"):
         Job(tmp_path, Variant("s7", "tri-dehaze", (flag, "7") if "=" not in flag else (flag,)))
     Job(tmp_path, Variant("ok", "tri-dehaze", ("--pipeline.freeze-fraction", "0.4")))
+
+
+def test_runs_of_other_code_are_neither_resumed_nor_reused(tmp_path, monkeypatch):
+    """A stopped run resumed after a code change used to finish under the new code from the old
+    code's checkpoint; the source fingerprint in the signature makes it start afresh, and a stored
+    result of the same settings shows as ``other code`` in a dry run."""
+    from pipelines.engine.run_config import write_text_atomic
+    from pipelines.experiments import runner as runner_mod
+    from pipelines.experiments.ablation import Variant
+
+    runner = runner_mod.AblationRunner(runner_mod.RunnerOptions(output_dir=tmp_path, max_steps=100))
+    job = runner_mod.Job(tmp_path / "scene", Variant("v", "tri-dehaze"))
+    rd = runner.run_dir(job)
+    (rd / "checkpoints").mkdir(parents=True)
+    (rd / "checkpoints" / "step-0000025.ckpt").write_bytes(b"x")
+    runner.state_path(job).parent.mkdir(parents=True)
+    write_text_atomic(runner.state_path(job), json.dumps(runner.signature(job)))
+    runner.result_path(job).parent.mkdir(parents=True)
+    write_text_atomic(
+        runner.result_path(job), json.dumps({"status": "ok", "signature": runner.signature(job)})
+    )
+    assert runner.state(job) == "done" and "--resume" in runner._train_command(job, rd)
+
+    monkeypatch.setattr(runner_mod, "code_fingerprint", lambda: "another-tree")
+    assert runner.finished(job) is None and runner.state(job) == "other code"
+    cmd = runner._train_command(job, rd)
+    assert "--resume" not in cmd and not rd.exists()
+    write_text_atomic(runner.result_path(job), json.dumps({"status": "ok", "signature": {"seed": 1}}))
+    assert runner.state(job) == "to run"
+
+
+def test_the_source_fingerprint_follows_the_code_not_the_docs(tmp_path):
+    from pipelines.experiments.code_version import code_fingerprint, source_fingerprint
+
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "k.cpp").write_text("int f();\n")
+    first = source_fingerprint([pkg])
+    (pkg / "notes.md").write_text("docs\n")
+    assert source_fingerprint([pkg]) == first
+    (pkg / "sub" / "k.cpp").write_text("int f(int);\n")
+    changed = source_fingerprint([pkg])
+    assert changed != first
+    (pkg / "b.py").write_text("")
+    assert source_fingerprint([pkg]) not in (first, changed)
+    assert len(code_fingerprint()) == 16 and code_fingerprint() == code_fingerprint()

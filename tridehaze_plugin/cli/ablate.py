@@ -126,9 +126,9 @@ def main(argv: list[str] | None = None) -> None:
     runner = AblationRunner(opts)
     if args.dry_run:
         for job in jobs:
-            state = "done" if runner.finished(job) else "to run"
+            state = runner.state(job)
             print(
-                f"{job.scene.name:>16}  {job.variant.name:<16} {state:<7} td-train {' '.join(job.variant.train_args())}"
+                f"{job.scene.name:>16}  {job.variant.name:<16} {state:<10} td-train {' '.join(job.variant.train_args())}"
             )
         return
     baselines = scene_baselines(args.scenes)

@@ -185,8 +185,8 @@ def tradeoff(args: TradeoffArgs) -> None:
     jobs = [Job(s, v) for s in args.scenes for v in variants]
     if args.dry_run:
         for job in jobs:
-            state = "done" if runner.finished(job) else "to run"
-            print(f"{job.scene.name:>16}  {job.variant.name:<22} {state:<7} steps {runner.steps(job)} "
+            state = runner.state(job)
+            print(f"{job.scene.name:>16}  {job.variant.name:<22} {state:<10} steps {runner.steps(job)} "
                   f"{' '.join(job.variant.overrides)}")  # fmt: skip
         return
     where = f"{args.jobs} at a time" if sweep.executor == "local" else "as Ray tasks"
