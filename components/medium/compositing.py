@@ -37,6 +37,7 @@ from components.data.cameras import Cameras
 from components.medium.base import MediumField
 from components.medium.pixel_readout import ReadoutGrid, read_pixels
 from tridehaze_plugin.config import Positive, Range, check_numbers
+from tridehaze_plugin.errors import ConfigError
 
 OPEN_SKY_COVERAGE = 0.5
 """Pixels covered less than this march their coarse rays to the far bound for the sky light; the
@@ -88,6 +89,14 @@ class CompositeConfig:
     the coarse rays of pixels covered less than half then march to the far bound for that light,
     which moves their samples (T and S differ slightly where the medium varies across a block).
     ``auto``: the haze light with ``background infinite``, the background colour with ``far``."""
+    per_gaussian: bool = False
+    """Apply the haze per Gaussian at its own depth, I = sum_i w_i (c_i T_i + S_i), instead of per
+    pixel at the blended depth, I = J T(D) + S(D) with D = sum_i w_i z_i: a Gaussian in front of
+    a surface (a floater, a half-transparent layer) then no longer shortens the haze in front of
+    the surface behind it. T_i and S_i are read from the same coarse rays at each Gaussian's
+    projected centre and camera z; a pass without gradient renders the depth they are marched to.
+    The per-pixel T and S (priors, evaluation, the fade) stay those at the blended depth. Needs
+    ``background far`` and no sky light."""
     clean_t0: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Transmittance below which the clean render fades to the haze light along the ray: the dark
     channel's J = (I - A) / max(t, t0) + A applied to the model's own composite, so a pixel whose
@@ -98,6 +107,12 @@ class CompositeConfig:
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
         check_numbers(self, prefix.removeprefix("--"))
+        if self.per_gaussian and (self.background != "far" or self.clean_sky == "haze-light"):
+            raise ConfigError(
+                f"{prefix}per-gaussian reads each Gaussian's haze from rays that end at the far bound; "
+                f"{prefix}background {self.background} / {prefix}clean-sky {self.clean_sky} is not supported with it",
+                fix=f"leave {prefix}background far and {prefix}clean-sky auto, or drop {prefix}per-gaussian",
+            )
 
 
 @dataclass
@@ -223,6 +238,41 @@ def _bilinear_neighbours(
     return torch.stack(rays), torch.stack(wgts)
 
 
+@dataclass
+class CoarseMarch:
+    """The coarse rays of one view, marched: the read-out table and what reading it needs."""
+
+    table: Tensor  # [R * (K + 1), 9] Tau_k, tau_k, T_k, S_k (3), L_k (3) per ray and boundary
+    ray_len: Tensor  # [R] path length per unit z of each coarse ray
+    zfar: Tensor  # [R] z each coarse ray was marched to (detached)
+    K: int
+    stride: int  # pixels per coarse ray along x and y
+    h: int  # coarse rays down
+    w: int  # coarse rays across
+    scattered: Tensor  # [3] MediumRender.scattered_light of the view
+
+    def grid(self, rays: Tensor, wgt: Tensor, pix_len: Tensor) -> ReadoutGrid:
+        """The read-out of points whose four nearest coarse rays are ``rays`` [4, P] with bilinear
+        weights ``wgt`` [4, P] and whose own rays have path length ``pix_len`` [P] per unit z."""
+        return ReadoutGrid(self.table, rays, wgt, pix_len, self.ray_len, self.zfar, self.K)
+
+
+def _point_neighbours(uv: Tensor, march: CoarseMarch, H: int, W: int) -> tuple[Tensor, Tensor]:
+    """The four nearest coarse rays of image points ``uv`` [P, 2] (pixels; clamped to the image) and
+    their bilinear weights: [4, P] each, as :func:`_bilinear_neighbours` for pixel centres."""
+    s, h, w = march.stride, march.h, march.w
+    px = uv[:, 0].clamp(0.0, W) / s - 0.5  # [P] in coarse-ray units
+    py = uv[:, 1].clamp(0.0, H) / s - 0.5
+    x0 = px.floor().clamp(0, w - 1).long()
+    y0 = py.floor().clamp(0, h - 1).long()
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    wx = (px - x0.to(px)).clamp(0, 1)
+    wy = (py - y0.to(py)).clamp(0, 1)
+    rays = [yy * w + xx for yy in (y0, y1) for xx in (x0, x1)]
+    wgts = [wyy * wxx for wyy in (1 - wy, wy) for wxx in (1 - wx, wx)]
+    return torch.stack(rays), torch.stack(wgts)
+
+
 class MediumCompositor:
     """Computes T and S for a view from a medium field and the clean render's depth and alpha."""
 
@@ -249,6 +299,14 @@ class MediumCompositor:
 
     def __call__(self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor) -> MediumRender:
         """camera: [1]; depth, alpha: [H, W, 1] from the clean render."""
+        return self._pixels(field, camera, depth, alpha)[0]
+
+    def _pixels(
+        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, open_to_far: bool = False
+    ) -> tuple[MediumRender, CoarseMarch | None]:
+        """The per-pixel medium of the view and the coarse march it was read from (None without a
+        medium); ``open_to_far``: the coarse rays of pixels covered less than ``OPEN_SKY_COVERAGE``
+        reach the far bound (as for the sky light)."""
         H, W = depth.shape[:2]
         far = self.far_bound(field)
         infinite = self.config.background == "infinite"
@@ -258,11 +316,34 @@ class MediumCompositor:
         else:
             z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
         z_rays = z
-        if infinite or sky_shown:  # rays of uncovered pixels reach the far bound for the sky light
+        if infinite or sky_shown or open_to_far:  # rays of uncovered pixels reach the far bound
             open_px = alpha.detach()[..., 0] < OPEN_SKY_COVERAGE  # [H, W]
             z_rays = torch.where(open_px, torch.full_like(z, far), z)
         if not field.has_medium:
-            return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
+            return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None]), None
+        march = self._march(field, camera, z_rays)
+        # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
+        # rescaled to the pixel's own path length (exact for a homogeneous medium)
+        rays, wgt = _bilinear_neighbours(H, W, march.h, march.w, march.stride, z.device, z.dtype)  # [4, H*W]
+        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
+        grid = march.grid(rays, wgt, pix_len)
+
+        fused = self.config.fused_readout
+        tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
+        T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
+        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=march.scattered)
+        if not (infinite or sky_shown):
+            return surface, march
+        # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
+        # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
+        z_far = torch.full_like(z, far).reshape(1, -1)
+        tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
+        sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
+        return self.with_sky(surface, alpha, sky), march
+
+    def _march(self, field: MediumField, camera: Cameras, z_rays: Tensor) -> CoarseMarch:
+        """March the coarse rays of a view whose pixels end at camera z ``z_rays`` [H, W]."""
+        H, W = z_rays.shape
         s, K = self.stride_for(H, W), self.config.num_samples
         h, w = math.ceil(H / s), math.ceil(W / s)
         # --- coarse rays: block centres, marched to the farthest end depth they serve
@@ -271,11 +352,11 @@ class MediumCompositor:
         if s > 1:  # the block's farthest depth, then one block further for the bilinear neighbours
             zfar = F.max_pool2d(F.max_pool2d(zpad, s), 3, stride=1, padding=1)
         zfar = zfar[0, 0]  # [h, w]
-        xs = (torch.arange(w, device=z.device, dtype=z.dtype) + 0.5) * s  # block centres, pixels
-        ys = (torch.arange(h, device=z.device, dtype=z.dtype) + 0.5) * s
+        xs = (torch.arange(w, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s  # block centres, pixels
+        ys = (torch.arange(h, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s
         dirs, origin = _pixel_dirs(camera, xs, ys)  # [h, w, 3], [3]
         step_len = dirs.norm(dim=-1)  # [h, w] path length per unit z
-        u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
+        u = (torch.arange(K, device=z_rays.device, dtype=z_rays.dtype) + 0.5) / K  # [K]
         zs = zfar[..., None] * u  # [h, w, K]
         pts = origin + zs[..., None] * dirs[:, :, None, :]  # [h, w, K, 3]
         unit = (dirs / step_len[..., None])[:, :, None, :].expand(-1, -1, K, -1)  # [h, w, K, 3]
@@ -296,25 +377,48 @@ class MediumCompositor:
              torch.cat([light, light[:, :1]], 1)],
             dim=-1,
         ).reshape(h * w * (K + 1), 9)  # fmt: skip
-        # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
-        # rescaled to the pixel's own path length (exact for a homogeneous medium)
-        rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
-        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
-        grid = ReadoutGrid(table, rays, wgt, pix_len, step_len.reshape(-1), zfar.reshape(-1), K)
+        return CoarseMarch(
+            table, step_len.reshape(-1), zfar.reshape(-1), K, s, h, w, _scattered_light(share, light)
+        )
 
+    def at_points(
+        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, uv: Tensor, z: Tensor
+    ) -> tuple[MediumRender, Tensor, Tensor, Tensor, Tensor]:
+        """The per-pixel medium of the view (as ``__call__``), then T [P] and S [P, 3] from the
+        camera to points at image positions ``uv`` [P, 2] (pixels, detached) and camera z ``z``
+        [P] (autograd reaches it), and T [H, W, 1] and S [H, W, 3] to the far bound per pixel,
+        all read from the same coarse rays. The coarse rays of pixels covered less than
+        ``OPEN_SKY_COVERAGE`` reach the far bound, so the far values are exact there; a better
+        covered pixel reads them at its rays' end (its uncovered share is under a half). Only
+        ``background far`` without the sky light is supported."""
+        if self.config.background != "far" or self.shows_sky():
+            raise ValueError(
+                "per-Gaussian compositing needs --pipeline.composite.background far and no sky light"
+            )
+        med, march = self._pixels(field, camera, depth, alpha, open_to_far=True)
+        H, W = depth.shape[:2]
+        if march is None:
+            return (
+                med,
+                z.new_ones(z.shape),
+                z.new_zeros(*z.shape, 3),
+                torch.ones_like(depth),
+                depth.new_zeros(H, W, 3),
+            )
         fused = self.config.fused_readout
-        tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
-        T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        scattered = _scattered_light(share, light)  # [3]
-        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=scattered)
-        if not (infinite or sky_shown):
-            return surface
-        # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
-        # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
-        z_far = torch.full_like(z, far).reshape(1, -1)
-        tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
-        sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        return self.with_sky(surface, alpha, sky)
+        rays, wgt = _point_neighbours(uv.detach(), march, H, W)  # [4, P] each
+        dx, dy = _normalised_coords(camera, uv[:, 0].detach(), uv[:, 1].detach())  # [P] each
+        pts_len = torch.sqrt(1.0 + dx.square() + dy.square())  # [P]
+        tau_g, S_g, _ = read_pixels(
+            march.grid(rays, wgt, pts_len), z.clamp_min(1e-6).reshape(1, -1), fused=fused
+        )
+        rays, wgt = _bilinear_neighbours(H, W, march.h, march.w, march.stride, z.device, z.dtype)
+        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)
+        z_far = depth.new_full((1, H * W), self.far_bound(field))
+        tau_f, S_f, _ = read_pixels(march.grid(rays, wgt, pix_len), z_far, fused=fused)
+        T_g = torch.exp(-tau_g).clamp_min(self.config.t_floor)
+        T_f = torch.exp(-tau_f).clamp_min(self.config.t_floor).reshape(H, W, 1)
+        return med, T_g, S_g, T_f, S_f.reshape(H, W, 3)
 
     def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and

@@ -73,6 +73,7 @@ ABLATIONS = [
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
     ("--pipeline.seed-colors", "observed"),
+    ("--pipeline.composite.per-gaussian",),
 ]
 
 
