@@ -36,8 +36,8 @@ class PerGaussianRender:
     """One view composited per Gaussian."""
 
     out: RasterizeOutput  # the colour pass; its screen-space gradients drive densification
-    clean: Tensor  # [H, W, 3] background included
     hazy: Tensor  # [H, W, 3]
+    clean: Tensor | None  # [H, W, 3] background included; None unless asked for
     medium: MediumRender  # per-pixel T and S at the pre-pass's blended depth
 
 
@@ -51,12 +51,14 @@ def render_per_gaussian(
     background: Tensor,
     policy: GradientPolicy,
     stage: int,
+    with_clean: bool = False,
 ) -> PerGaussianRender:
     """camera: [1]; background [3]. The gradient policy rescales the gradient reaching each
-    Gaussian's clean colour by its own 1 / clamp(T_i, t_min) (the pixel form: the pixel's T)."""
-    with torch.no_grad():  # where the coarse rays end, and each centre's pixel position
-        pre = model.render(rasterizer, camera, sh_degree_step, background)
+    Gaussian's clean colour by its own 1 / clamp(T_i, t_min) (the pixel form: the pixel's T).
+    Training needs the hazy view only; ``with_clean`` blends the clean colours in the same pass."""
     means = model.means  # [N, 3]
+    with torch.no_grad():  # where the coarse rays end, and each centre's pixel position: one channel
+        pre = model.render_colors(rasterizer, camera, means.new_ones(means.shape[0], 1))
     viewmat = camera.viewmats()[0].to(means)  # [4, 4] world -> camera
     z = means @ viewmat[2, :3] + viewmat[2, 3]  # [N] camera z of each centre
     if not compositor.config.depth_gradient:
@@ -68,8 +70,10 @@ def render_per_gaussian(
     colors = sh_to_colors(model.active_sh_degree(sh_degree_step), model.sh_coeffs, means - centre)  # [N, 3]
     T = T_g[:, None]  # [N, 1]
     hazy_colors = policy.apply(colors, T, stage) * T + S_g  # [N, 3]
-    out = model.render_colors(rasterizer, camera, torch.cat([colors, hazy_colors], dim=-1))
-    rgb, uncovered = out.rgb[0], 1.0 - out.alpha[0]  # [H, W, 6], [H, W, 1]
-    clean = rgb[..., :3] + uncovered * background
-    hazy = rgb[..., 3:] + uncovered * (background * T_far + S_far)
-    return PerGaussianRender(out, clean, hazy, med)
+    out = model.render_colors(
+        rasterizer, camera, torch.cat([hazy_colors, colors], -1) if with_clean else hazy_colors
+    )
+    rgb, uncovered = out.rgb[0], 1.0 - out.alpha[0]  # [H, W, 3 or 6], [H, W, 1]
+    hazy = rgb[..., :3] + uncovered * (background * T_far + S_far)
+    clean = rgb[..., 3:] + uncovered * background if with_clean else None
+    return PerGaussianRender(out, hazy, clean, med)

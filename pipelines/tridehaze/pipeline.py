@@ -513,7 +513,7 @@ class GaussianPipeline(Pipeline):
     def _render_per_gaussian(self, camera: Cameras, step: int | None) -> dict[str, Tensor]:
         r = render_per_gaussian(
             self.model, self.rasterizer, self.compositor, self.medium, camera,
-            10**9 if step is None else step, self.background, self.policy, stage=1,
+            10**9 if step is None else step, self.background, self.policy, stage=1, with_clean=True,
         )  # fmt: skip
         return {
             "clean": self.compositor.clean_view(r.medium, r.clean).clamp(0, 1),

@@ -41,7 +41,7 @@ def _render(device, policy: GradientPolicy, stage: int = 1, depth_gradient: bool
     rasterizer = RasterizerConfig(backend="torch").setup(device=device)
     cam = _camera(device)
     bg = torch.tensor([0.2, 0.4, 0.6], device=device)
-    r = render_per_gaussian(model, rasterizer, comp, field, cam, 0, bg, policy, stage)
+    r = render_per_gaussian(model, rasterizer, comp, field, cam, 0, bg, policy, stage, with_clean=True)
     return model, field, comp, rasterizer, cam, bg, r
 
 
