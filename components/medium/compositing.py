@@ -94,9 +94,9 @@ class CompositeConfig:
     pixel at the blended depth, I = J T(D) + S(D) with D = sum_i w_i z_i: a Gaussian in front of
     a surface (a floater, a half-transparent layer) then no longer shortens the haze in front of
     the surface behind it. T_i and S_i are read from the same coarse rays at each Gaussian's
-    projected centre and camera z; a pass without gradient renders the depth they are marched to.
-    The per-pixel T and S (priors, evaluation, the fade) stay those at the blended depth. Needs
-    ``background far`` and no sky light."""
+    projected centre and camera z; a coarse one-channel pass without gradient renders the depth
+    they are marched to. The per-pixel T and S (priors, evaluation, the fade) stay those at the
+    blended depth. Needs ``background far`` and no sky light."""
     clean_t0: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Transmittance below which the clean render fades to the haze light along the ray: the dark
     channel's J = (I - A) / max(t, t0) + A applied to the model's own composite, so a pixel whose
@@ -273,6 +273,13 @@ def _point_neighbours(uv: Tensor, march: CoarseMarch, H: int, W: int) -> tuple[T
     return torch.stack(rays), torch.stack(wgts)
 
 
+def _twice(grid: ReadoutGrid) -> ReadoutGrid:
+    """The read-out of every point of ``grid`` twice over (two depths per pixel in one read)."""
+    return replace(
+        grid, rays=grid.rays.repeat(1, 2), wgt=grid.wgt.repeat(1, 2), pix_len=grid.pix_len.repeat(2)
+    )
+
+
 class MediumCompositor:
     """Computes T and S for a view from a medium field and the clean render's depth and alpha."""
 
@@ -299,14 +306,6 @@ class MediumCompositor:
 
     def __call__(self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor) -> MediumRender:
         """camera: [1]; depth, alpha: [H, W, 1] from the clean render."""
-        return self._pixels(field, camera, depth, alpha)[0]
-
-    def _pixels(
-        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, open_to_far: bool = False
-    ) -> tuple[MediumRender, CoarseMarch | None]:
-        """The per-pixel medium of the view and the coarse march it was read from (None without a
-        medium); ``open_to_far``: the coarse rays of pixels covered less than ``OPEN_SKY_COVERAGE``
-        reach the far bound (as for the sky light)."""
         H, W = depth.shape[:2]
         far = self.far_bound(field)
         infinite = self.config.background == "infinite"
@@ -316,11 +315,11 @@ class MediumCompositor:
         else:
             z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
         z_rays = z
-        if infinite or sky_shown or open_to_far:  # rays of uncovered pixels reach the far bound
+        if infinite or sky_shown:  # rays of uncovered pixels reach the far bound for the sky light
             open_px = alpha.detach()[..., 0] < OPEN_SKY_COVERAGE  # [H, W]
             z_rays = torch.where(open_px, torch.full_like(z, far), z)
         if not field.has_medium:
-            return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None]), None
+            return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
         march = self._march(field, camera, z_rays)
         # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
         # rescaled to the pixel's own path length (exact for a homogeneous medium)
@@ -333,24 +332,35 @@ class MediumCompositor:
         T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
         surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=march.scattered)
         if not (infinite or sky_shown):
-            return surface, march
+            return surface
         # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
         # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
         z_far = torch.full_like(z, far).reshape(1, -1)
         tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        return self.with_sky(surface, alpha, sky), march
+        return self.with_sky(surface, alpha, sky)
 
-    def _march(self, field: MediumField, camera: Cameras, z_rays: Tensor) -> CoarseMarch:
-        """March the coarse rays of a view whose pixels end at camera z ``z_rays`` [H, W]."""
-        H, W = z_rays.shape
+    def _march(
+        self,
+        field: MediumField,
+        camera: Cameras,
+        z_rays: Tensor,
+        size: tuple[int, int] | None = None,
+        factor: int = 1,
+    ) -> CoarseMarch:
+        """March the coarse rays of a view whose pixels end at camera z ``z_rays`` [H, W], or
+        [ceil(H / factor), ceil(W / factor)] for an image of ``size`` (H, W) whose depth was
+        rendered ``factor`` times coarser (``factor`` divides the stride)."""
+        H, W = size if size is not None else z_rays.shape
         s, K = self.stride_for(H, W), self.config.num_samples
         h, w = math.ceil(H / s), math.ceil(W / s)
+        b = s // factor  # depth pixels per coarse ray along x and y
         # --- coarse rays: block centres, marched to the farthest end depth they serve
-        zpad = F.pad(z_rays[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
+        Hz, Wz = z_rays.shape
+        zpad = F.pad(z_rays[None, None].detach(), (0, w * b - Wz, 0, h * b - Hz), mode="replicate")
         zfar = zpad  # [1, 1, h, w]; stride 1: each ray ends at its own pixel's depth
         if s > 1:  # the block's farthest depth, then one block further for the bilinear neighbours
-            zfar = F.max_pool2d(F.max_pool2d(zpad, s), 3, stride=1, padding=1)
+            zfar = F.max_pool2d(F.max_pool2d(zpad, b) if b > 1 else zpad, 3, stride=1, padding=1)
         zfar = zfar[0, 0]  # [h, w]
         xs = (torch.arange(w, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s  # block centres, pixels
         ys = (torch.arange(h, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s
@@ -381,44 +391,57 @@ class MediumCompositor:
             table, step_len.reshape(-1), zfar.reshape(-1), K, s, h, w, _scattered_light(share, light)
         )
 
-    def at_points(
-        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, uv: Tensor, z: Tensor
-    ) -> tuple[MediumRender, Tensor, Tensor, Tensor, Tensor]:
-        """The per-pixel medium of the view (as ``__call__``), then T [P] and S [P, 3] from the
-        camera to points at image positions ``uv`` [P, 2] (pixels, detached) and camera z ``z``
-        [P] (autograd reaches it), and T [H, W, 1] and S [H, W, 3] to the far bound per pixel,
-        all read from the same coarse rays. The coarse rays of pixels covered less than
-        ``OPEN_SKY_COVERAGE`` reach the far bound, so the far values are exact there; a better
-        covered pixel reads them at its rays' end (its uncovered share is under a half). Only
-        ``background far`` without the sky light is supported."""
+    # ------------------------------------------------ the per-Gaussian composite (per_gaussian)
+    def depth_factor(self, height: int, width: int) -> int:
+        """How much coarser the per-Gaussian composite's depth pre-pass may be rendered: two depth
+        pixels per coarse ray along x and y where the stride allows it (8 -> 4 at 320x240)."""
+        s = self.stride_for(height, width)
+        return s // 2 if s >= 4 and s % 2 == 0 else 1
+
+    def march_view(
+        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, size: tuple[int, int]
+    ) -> CoarseMarch:
+        """The coarse rays of a view of ``size`` (H, W), marched to the end depth of a pre-pass
+        ``depth``, ``alpha`` [h', w', 1] (``depth_factor`` times coarser); rays of pixels covered
+        less than ``OPEN_SKY_COVERAGE`` reach the far bound."""
         if self.config.background != "far" or self.shows_sky():
             raise ValueError(
                 "per-Gaussian compositing needs --pipeline.composite.background far and no sky light"
             )
-        med, march = self._pixels(field, camera, depth, alpha, open_to_far=True)
-        H, W = depth.shape[:2]
-        if march is None:
-            return (
-                med,
-                z.new_ones(z.shape),
-                z.new_zeros(*z.shape, 3),
-                torch.ones_like(depth),
-                depth.new_zeros(H, W, 3),
-            )
-        fused = self.config.fused_readout
-        rays, wgt = _point_neighbours(uv.detach(), march, H, W)  # [4, P] each
+        far = self.far_bound(field)
+        z = self.end_depth(depth, alpha, far)[..., 0]  # [h', w']
+        z_rays = torch.where(alpha.detach()[..., 0] < OPEN_SKY_COVERAGE, torch.full_like(z, far), z)
+        return self._march(field, camera, z_rays, size, self.depth_factor(*size))
+
+    def read_points(
+        self, march: CoarseMarch, camera: Cameras, uv: Tensor, z: Tensor, size: tuple[int, int]
+    ) -> tuple[Tensor, Tensor]:
+        """T [P] and S [P, 3] from the camera to points at image positions ``uv`` [P, 2] (pixels,
+        detached) and camera z ``z`` [P] (autograd reaches it)."""
+        rays, wgt = _point_neighbours(uv.detach(), march, *size)  # [4, P] each
         dx, dy = _normalised_coords(camera, uv[:, 0].detach(), uv[:, 1].detach())  # [P] each
-        pts_len = torch.sqrt(1.0 + dx.square() + dy.square())  # [P]
-        tau_g, S_g, _ = read_pixels(
-            march.grid(rays, wgt, pts_len), z.clamp_min(1e-6).reshape(1, -1), fused=fused
+        length = torch.sqrt(1.0 + dx.square() + dy.square())  # [P] path length per unit z
+        tau, S, _ = read_pixels(
+            march.grid(rays, wgt, length), z.clamp_min(1e-6).reshape(1, -1), self.config.fused_readout
         )
+        return torch.exp(-tau).clamp_min(self.config.t_floor), S
+
+    def read_view(
+        self, march: CoarseMarch, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor
+    ) -> tuple[MediumRender, Tensor, Tensor]:
+        """Per pixel from ``march``: the medium to the end depth of ``depth``, ``alpha`` [H, W, 1]
+        (as ``__call__`` reads it), and T [H, W, 1] and S [H, W, 3] to the far bound (exact where
+        the pre-pass left the pixel mostly uncovered; elsewhere read at its rays' end)."""
+        H, W = depth.shape[:2]
+        far = self.far_bound(field)
+        z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
         rays, wgt = _bilinear_neighbours(H, W, march.h, march.w, march.stride, z.device, z.dtype)
-        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)
-        z_far = depth.new_full((1, H * W), self.far_bound(field))
-        tau_f, S_f, _ = read_pixels(march.grid(rays, wgt, pix_len), z_far, fused=fused)
-        T_g = torch.exp(-tau_g).clamp_min(self.config.t_floor)
-        T_f = torch.exp(-tau_f).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        return med, T_g, S_g, T_f, S_f.reshape(H, W, 3)
+        grid = march.grid(rays, wgt, pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1))
+        z_both = torch.cat([z.reshape(1, -1), torch.full_like(z, far).reshape(1, -1)], dim=1)  # [1, 2 H W]
+        tau, S, _ = read_pixels(_twice(grid), z_both, fused=self.config.fused_readout)
+        T = torch.exp(-tau).clamp_min(self.config.t_floor).reshape(2, H, W, 1)
+        S = S.reshape(2, H, W, 3)
+        return MediumRender(T[0], S[0], z[..., None], scattered_light=march.scattered), T[1], S[1]
 
     def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and

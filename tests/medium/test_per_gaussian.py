@@ -34,10 +34,10 @@ def _layered_model(device: torch.device) -> GaussianModel:
     return GaussianModel(GaussianModelConfig(), params).to(device)
 
 
-def _render(device, policy: GradientPolicy, stage: int = 1, depth_gradient: bool = False):
+def _render(device, policy: GradientPolicy, stage: int = 1, depth_gradient: bool = False, stride: int = 3):
     model = _layered_model(device)
     field = AnalyticField(b0=BETA, light=LIGHT).to(device)
-    comp = MediumCompositor(CompositeConfig(num_samples=8, ray_stride=3, depth_gradient=depth_gradient))
+    comp = MediumCompositor(CompositeConfig(num_samples=8, ray_stride=stride, depth_gradient=depth_gradient))
     rasterizer = RasterizerConfig(backend="torch").setup(device=device)
     cam = _camera(device)
     bg = torch.tensor([0.2, 0.4, 0.6], device=device)
@@ -52,25 +52,32 @@ def _closed_form(model, cam):
     return torch.exp(-BETA * cam_pts.norm(dim=-1))[:, None], cam_pts[:, 2]
 
 
-def test_each_gaussian_is_hazed_at_its_own_depth(device):
+@pytest.mark.parametrize("stride", [3, 4])
+def test_each_gaussian_is_hazed_at_its_own_depth(device, stride):
     """In a homogeneous medium T_i = exp(-beta |x_i - o|) and S_i = L (1 - T_i) exactly, whatever the
     coarse-ray stride; the composite is the alpha blend of c_i T_i + S_i plus the background seen
     through the medium to the far bound (exact where a pixel is mostly uncovered)."""
-    model, field, comp, rasterizer, cam, bg, r = _render(device, GradientPolicy(0.1))
+    model, field, comp, rasterizer, cam, bg, r = _render(device, GradientPolicy(0.1), stride=stride)
+    assert comp.depth_factor(24, 32) == (2 if stride == 4 else 1)  # the pre-pass at half resolution
     T, z = _closed_form(model, cam)
     assert bool((z > 0).all())
-    pre = model.render(rasterizer, cam, 0, bg)
-    _, T_g, S_g, T_far, S_far = comp.at_points(field, cam, pre.depth[0], pre.alpha[0], pre.means2d[0], z)
+    alpha = r.out.alpha[0]  # [H, W, 1]
+    H, W = alpha.shape[:2]
+    march = r.march
+    K = cam.Ks()[0]
+    viewmat = cam.viewmats()[0]
+    cam_pts = model.means @ viewmat[:3, :3].T + viewmat[:3, 3]
+    uv = cam_pts[:, :2] / cam_pts[:, 2:] * K.diagonal()[:2] + K[:2, 2]
+    T_g, S_g = comp.read_points(march, cam, uv, z, (H, W))
+    _, T_far, S_far = comp.read_view(march, field, cam, r.out.depth[0], alpha)
     torch.testing.assert_close(T_g[:, None], T, rtol=0, atol=2e-6)
     torch.testing.assert_close(S_g, (LIGHT * (1 - T)).expand(-1, 3), rtol=0, atol=2e-6)
     colors = model.sh_coeffs[:, 0, :] * 0.28209479177387814 + 0.5  # [N, 3] (SH degree 0)
     blended = model.render_values(rasterizer, cam, torch.cat([colors * T_g[:, None] + S_g, colors], -1))[0]
-    alpha = pre.alpha[0]  # [H, W, 1]
     torch.testing.assert_close(
         r.hazy, blended[..., :3] + (1 - alpha) * (bg * T_far + S_far), rtol=0, atol=1e-6
     )
     torch.testing.assert_close(r.clean, blended[..., 3:] + (1 - alpha) * bg, rtol=0, atol=1e-6)
-    H, W = alpha.shape[:2]
     xs = (torch.arange(W, device=device) + 0.5 - W / 2) / 30.0
     ys = (torch.arange(H, device=device) + 0.5 - H / 2) / 33.0
     far = comp.far_bound(field)
