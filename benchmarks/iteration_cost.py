@@ -6,9 +6,7 @@ optimizer step, i.e. exactly what ``td-train`` runs. Variants are interleaved ro
 load from other users of a shared machine hits all alike; medians and ratios to vanilla-gs are
 reported. The Tri-DehazeGS variants differ in how many rays the medium is marched along
 (``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation) and in how each pixel
-reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``),
-and in where the haze is applied (``--pipeline.composite.per-gaussian``: at each Gaussian's depth,
-with a one-channel pre-pass without gradient for the depth the medium is marched to).
+reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``).
 The default has the depth holds (``--pipeline.composite.depth-gradient
 --pipeline.lambda-depth-metric 0.05``: the gradient into the rendered depth and the metric prior);
 "without the depth holds" turns both off (the default before session 19).
@@ -62,7 +60,6 @@ def variants() -> dict[str, tuple[str, dict]]:
         "tri-dehaze (stride 4)": ("tri-dehaze", {"stride": 4}),
         "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
         "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
-        "tri-dehaze (per-Gaussian haze)": ("tri-dehaze", {"per_gaussian": True}),
     }
 
 
@@ -79,7 +76,6 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
             ray_stride=over.get("stride", p.composite.ray_stride),
             fused_readout=over.get("fused", p.composite.fused_readout),
             depth_gradient=over.get("holds", p.composite.depth_gradient),
-            per_gaussian=over.get("per_gaussian", p.composite.per_gaussian),
         ),
     )
     if over.get("holds") is False:  # the depth holds off: no gradient into depth, no metric prior
@@ -109,7 +105,7 @@ def iteration(pipe, opt, step: int, device: torch.device) -> float:
 def profile(pipe, opt, step: int, device: torch.device, iterations: int, out: Path) -> list[dict]:
     """torch.profiler over a few iterations: where the time of a Tri-DehazeGS step goes.
 
-    The pipeline labels its stages (``td.rasterize``, ``td.medium``, ``td.composite``, ``td.loss``; ``td.per-gaussian`` for the per-Gaussian composite) with
+    The pipeline labels its stages (``td.rasterize``, ``td.medium``, ``td.composite+loss``) with
     ``record_function``; the table lists those labels and the most expensive operators by device
     time (CUDA) or CPU time.
     """

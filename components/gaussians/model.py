@@ -272,16 +272,11 @@ class GaussianModel(nn.Module):
     def render_values(self, rasterizer: Rasterizer, cameras: Cameras, attr: Tensor) -> Tensor:
         """Alpha-blend per-Gaussian values ``attr`` [N, D] (differentiable) like a colour, with the
         geometry of :meth:`render` and a zero background: [C, H, W, D]."""
-        return self.render_colors(rasterizer, cameras, attr).rgb
-
-    def render_colors(self, rasterizer: Rasterizer, cameras: Cameras, colors: Tensor) -> RasterizeOutput:
-        """:meth:`render` with per-Gaussian colours ``colors`` [N, D] given instead of the SH
-        (already evaluated for the view) and a zero background."""
         return rasterizer.rasterize(
-            self.means, self.quats, self.scales, self.opacities, colors,
-            cameras.viewmats().to(colors), cameras.Ks().to(colors), int(cameras.width[0]), int(cameras.height[0]),
-            background=torch.zeros(colors.shape[-1], device=colors.device),
-        )  # fmt: skip
+            self.means, self.quats, self.scales, self.opacities, attr,
+            cameras.viewmats().to(attr), cameras.Ks().to(attr), int(cameras.width[0]), int(cameras.height[0]),
+            background=torch.zeros(attr.shape[-1], device=attr.device),
+        ).rgb  # fmt: skip
 
     def render(
         self,

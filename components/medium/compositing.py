@@ -37,7 +37,6 @@ from components.data.cameras import Cameras
 from components.medium.base import MediumField
 from components.medium.pixel_readout import ReadoutGrid, read_pixels
 from tridehaze_plugin.config import Positive, Range, check_numbers
-from tridehaze_plugin.errors import ConfigError
 
 OPEN_SKY_COVERAGE = 0.5
 """Pixels covered less than this march their coarse rays to the far bound for the sky light; the
@@ -89,14 +88,6 @@ class CompositeConfig:
     the coarse rays of pixels covered less than half then march to the far bound for that light,
     which moves their samples (T and S differ slightly where the medium varies across a block).
     ``auto``: the haze light with ``background infinite``, the background colour with ``far``."""
-    per_gaussian: bool = False
-    """Apply the haze per Gaussian at its own depth, I = sum_i w_i (c_i T_i + S_i), instead of per
-    pixel at the blended depth, I = J T(D) + S(D) with D = sum_i w_i z_i: a Gaussian in front of
-    a surface (a floater, a half-transparent layer) then no longer shortens the haze in front of
-    the surface behind it. T_i and S_i are read from the same coarse rays at each Gaussian's
-    projected centre and camera z; a coarse one-channel pass without gradient renders the depth
-    they are marched to. The per-pixel T and S (priors, evaluation, the fade) stay those at the
-    blended depth. Needs ``background far`` and no sky light."""
     clean_t0: Annotated[float, Range(0.0, 0.5)] = 0.0
     """Transmittance below which the clean render fades to the haze light along the ray: the dark
     channel's J = (I - A) / max(t, t0) + A applied to the model's own composite, so a pixel whose
@@ -107,12 +98,6 @@ class CompositeConfig:
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
         check_numbers(self, prefix.removeprefix("--"))
-        if self.per_gaussian and (self.background != "far" or self.clean_sky == "haze-light"):
-            raise ConfigError(
-                f"{prefix}per-gaussian reads each Gaussian's haze from rays that end at the far bound; "
-                f"{prefix}background {self.background} / {prefix}clean-sky {self.clean_sky} is not supported with it",
-                fix=f"leave {prefix}background far and {prefix}clean-sky auto, or drop {prefix}per-gaussian",
-            )
 
 
 @dataclass
@@ -238,48 +223,6 @@ def _bilinear_neighbours(
     return torch.stack(rays), torch.stack(wgts)
 
 
-@dataclass
-class CoarseMarch:
-    """The coarse rays of one view, marched: the read-out table and what reading it needs."""
-
-    table: Tensor  # [R * (K + 1), 9] Tau_k, tau_k, T_k, S_k (3), L_k (3) per ray and boundary
-    ray_len: Tensor  # [R] path length per unit z of each coarse ray
-    zfar: Tensor  # [R] z each coarse ray was marched to (detached)
-    K: int
-    stride: int  # pixels per coarse ray along x and y
-    h: int  # coarse rays down
-    w: int  # coarse rays across
-    scattered: Tensor  # [3] MediumRender.scattered_light of the view
-
-    def grid(self, rays: Tensor, wgt: Tensor, pix_len: Tensor) -> ReadoutGrid:
-        """The read-out of points whose four nearest coarse rays are ``rays`` [4, P] with bilinear
-        weights ``wgt`` [4, P] and whose own rays have path length ``pix_len`` [P] per unit z."""
-        return ReadoutGrid(self.table, rays, wgt, pix_len, self.ray_len, self.zfar, self.K)
-
-
-def _point_neighbours(uv: Tensor, march: CoarseMarch, H: int, W: int) -> tuple[Tensor, Tensor]:
-    """The four nearest coarse rays of image points ``uv`` [P, 2] (pixels; clamped to the image) and
-    their bilinear weights: [4, P] each, as :func:`_bilinear_neighbours` for pixel centres."""
-    s, h, w = march.stride, march.h, march.w
-    px = uv[:, 0].clamp(0.0, W) / s - 0.5  # [P] in coarse-ray units
-    py = uv[:, 1].clamp(0.0, H) / s - 0.5
-    x0 = px.floor().clamp(0, w - 1).long()
-    y0 = py.floor().clamp(0, h - 1).long()
-    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
-    wx = (px - x0.to(px)).clamp(0, 1)
-    wy = (py - y0.to(py)).clamp(0, 1)
-    rays = [yy * w + xx for yy in (y0, y1) for xx in (x0, x1)]
-    wgts = [wyy * wxx for wyy in (1 - wy, wy) for wxx in (1 - wx, wx)]
-    return torch.stack(rays), torch.stack(wgts)
-
-
-def _twice(grid: ReadoutGrid) -> ReadoutGrid:
-    """The read-out of every point of ``grid`` twice over (two depths per pixel in one read)."""
-    return replace(
-        grid, rays=grid.rays.repeat(1, 2), wgt=grid.wgt.repeat(1, 2), pix_len=grid.pix_len.repeat(2)
-    )
-
-
 class MediumCompositor:
     """Computes T and S for a view from a medium field and the clean render's depth and alpha."""
 
@@ -320,53 +263,19 @@ class MediumCompositor:
             z_rays = torch.where(open_px, torch.full_like(z, far), z)
         if not field.has_medium:
             return MediumRender(torch.ones_like(z)[..., None], z.new_zeros(H, W, 3), z[..., None])
-        march = self._march(field, camera, z_rays)
-        # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
-        # rescaled to the pixel's own path length (exact for a homogeneous medium)
-        rays, wgt = _bilinear_neighbours(H, W, march.h, march.w, march.stride, z.device, z.dtype)  # [4, H*W]
-        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
-        grid = march.grid(rays, wgt, pix_len)
-
-        fused = self.config.fused_readout
-        tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
-        T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
-        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=march.scattered)
-        if not (infinite or sky_shown):
-            return surface
-        # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
-        # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
-        z_far = torch.full_like(z, far).reshape(1, -1)
-        tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
-        sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
-        return self.with_sky(surface, alpha, sky)
-
-    def _march(
-        self,
-        field: MediumField,
-        camera: Cameras,
-        z_rays: Tensor,
-        size: tuple[int, int] | None = None,
-        factor: int = 1,
-    ) -> CoarseMarch:
-        """March the coarse rays of a view whose pixels end at camera z ``z_rays`` [H, W], or
-        [ceil(H / factor), ceil(W / factor)] for an image of ``size`` (H, W) whose depth was
-        rendered ``factor`` times coarser (``factor`` divides the stride)."""
-        H, W = size if size is not None else z_rays.shape
         s, K = self.stride_for(H, W), self.config.num_samples
         h, w = math.ceil(H / s), math.ceil(W / s)
-        b = s // factor  # depth pixels per coarse ray along x and y
         # --- coarse rays: block centres, marched to the farthest end depth they serve
-        Hz, Wz = z_rays.shape
-        zpad = F.pad(z_rays[None, None].detach(), (0, w * b - Wz, 0, h * b - Hz), mode="replicate")
+        zpad = F.pad(z_rays[None, None].detach(), (0, w * s - W, 0, h * s - H), mode="replicate")
         zfar = zpad  # [1, 1, h, w]; stride 1: each ray ends at its own pixel's depth
         if s > 1:  # the block's farthest depth, then one block further for the bilinear neighbours
-            zfar = F.max_pool2d(F.max_pool2d(zpad, b) if b > 1 else zpad, 3, stride=1, padding=1)
+            zfar = F.max_pool2d(F.max_pool2d(zpad, s), 3, stride=1, padding=1)
         zfar = zfar[0, 0]  # [h, w]
-        xs = (torch.arange(w, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s  # block centres, pixels
-        ys = (torch.arange(h, device=z_rays.device, dtype=z_rays.dtype) + 0.5) * s
+        xs = (torch.arange(w, device=z.device, dtype=z.dtype) + 0.5) * s  # block centres, pixels
+        ys = (torch.arange(h, device=z.device, dtype=z.dtype) + 0.5) * s
         dirs, origin = _pixel_dirs(camera, xs, ys)  # [h, w, 3], [3]
         step_len = dirs.norm(dim=-1)  # [h, w] path length per unit z
-        u = (torch.arange(K, device=z_rays.device, dtype=z_rays.dtype) + 0.5) / K  # [K]
+        u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
         zs = zfar[..., None] * u  # [h, w, K]
         pts = origin + zs[..., None] * dirs[:, :, None, :]  # [h, w, K, 3]
         unit = (dirs / step_len[..., None])[:, :, None, :].expand(-1, -1, K, -1)  # [h, w, K, 3]
@@ -387,61 +296,25 @@ class MediumCompositor:
              torch.cat([light, light[:, :1]], 1)],
             dim=-1,
         ).reshape(h * w * (K + 1), 9)  # fmt: skip
-        return CoarseMarch(
-            table, step_len.reshape(-1), zfar.reshape(-1), K, s, h, w, _scattered_light(share, light)
-        )
+        # --- per pixel: the four nearest coarse rays, each read at the pixel's own depth and
+        # rescaled to the pixel's own path length (exact for a homogeneous medium)
+        rays, wgt = _bilinear_neighbours(H, W, h, w, s, z.device, z.dtype)  # [4, H*W] each
+        pix_len = pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1)  # [H*W]
+        grid = ReadoutGrid(table, rays, wgt, pix_len, step_len.reshape(-1), zfar.reshape(-1), K)
 
-    # ------------------------------------------------ the per-Gaussian composite (per_gaussian)
-    def depth_factor(self, height: int, width: int) -> int:
-        """How much coarser the per-Gaussian composite's depth pre-pass may be rendered: two depth
-        pixels per coarse ray along x and y where the stride allows it (8 -> 4 at 320x240)."""
-        s = self.stride_for(height, width)
-        return s // 2 if s >= 4 and s % 2 == 0 else 1
-
-    def march_view(
-        self, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor, size: tuple[int, int]
-    ) -> CoarseMarch:
-        """The coarse rays of a view of ``size`` (H, W), marched to the end depth of a pre-pass
-        ``depth``, ``alpha`` [h', w', 1] (``depth_factor`` times coarser); rays of pixels covered
-        less than ``OPEN_SKY_COVERAGE`` reach the far bound."""
-        if self.config.background != "far" or self.shows_sky():
-            raise ValueError(
-                "per-Gaussian compositing needs --pipeline.composite.background far and no sky light"
-            )
-        far = self.far_bound(field)
-        z = self.end_depth(depth, alpha, far)[..., 0]  # [h', w']
-        z_rays = torch.where(alpha.detach()[..., 0] < OPEN_SKY_COVERAGE, torch.full_like(z, far), z)
-        return self._march(field, camera, z_rays, size, self.depth_factor(*size))
-
-    def read_points(
-        self, march: CoarseMarch, camera: Cameras, uv: Tensor, z: Tensor, size: tuple[int, int]
-    ) -> tuple[Tensor, Tensor]:
-        """T [P] and S [P, 3] from the camera to points at image positions ``uv`` [P, 2] (pixels,
-        detached) and camera z ``z`` [P] (autograd reaches it)."""
-        rays, wgt = _point_neighbours(uv.detach(), march, *size)  # [4, P] each
-        dx, dy = _normalised_coords(camera, uv[:, 0].detach(), uv[:, 1].detach())  # [P] each
-        length = torch.sqrt(1.0 + dx.square() + dy.square())  # [P] path length per unit z
-        tau, S, _ = read_pixels(
-            march.grid(rays, wgt, length), z.clamp_min(1e-6).reshape(1, -1), self.config.fused_readout
-        )
-        return torch.exp(-tau).clamp_min(self.config.t_floor), S
-
-    def read_view(
-        self, march: CoarseMarch, field: MediumField, camera: Cameras, depth: Tensor, alpha: Tensor
-    ) -> tuple[MediumRender, Tensor, Tensor]:
-        """Per pixel from ``march``: the medium to the end depth of ``depth``, ``alpha`` [H, W, 1]
-        (as ``__call__`` reads it), and T [H, W, 1] and S [H, W, 3] to the far bound (exact where
-        the pre-pass left the pixel mostly uncovered; elsewhere read at its rays' end)."""
-        H, W = depth.shape[:2]
-        far = self.far_bound(field)
-        z = self.end_depth(depth, alpha, far)[..., 0]  # [H, W]
-        rays, wgt = _bilinear_neighbours(H, W, march.h, march.w, march.stride, z.device, z.dtype)
-        grid = march.grid(rays, wgt, pixel_path_lengths(camera, H, W, z.device, z.dtype).reshape(-1))
-        z_both = torch.cat([z.reshape(1, -1), torch.full_like(z, far).reshape(1, -1)], dim=1)  # [1, 2 H W]
-        tau, S, _ = read_pixels(_twice(grid), z_both, fused=self.config.fused_readout)
-        T = torch.exp(-tau).clamp_min(self.config.t_floor).reshape(2, H, W, 1)
-        S = S.reshape(2, H, W, 3)
-        return MediumRender(T[0], S[0], z[..., None], scattered_light=march.scattered), T[1], S[1]
+        fused = self.config.fused_readout
+        tau_p, S_p, _ = read_pixels(grid, z.reshape(1, -1), fused=fused)  # [H*W], [H*W, 3]
+        T = torch.exp(-tau_p).clamp_min(self.config.t_floor).reshape(H, W, 1)
+        scattered = _scattered_light(share, light)  # [3]
+        surface = MediumRender(T, S_p.reshape(H, W, 3), z[..., None], scattered_light=scattered)
+        if not (infinite or sky_shown):
+            return surface
+        # past the far bound the field keeps its boundary value (clamped lookup): the rest of the
+        # ray to infinity adds exp(-tau_far) * L_last and leaves nothing of what lies behind
+        z_far = torch.full_like(z, far).reshape(1, -1)
+        tau_f, S_f, L_last = read_pixels(grid, z_far, last_light=True, fused=fused)
+        sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
+        return self.with_sky(surface, alpha, sky)
 
     def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and

@@ -32,7 +32,6 @@ from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.metrics import psnr
-from pipelines.tridehaze.per_gaussian import render_per_gaussian
 from pipelines.tridehaze.priors import (
     ViewPrior,
     build_view_priors,
@@ -239,7 +238,6 @@ class GaussianPipeline(Pipeline):
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
-        self._per_gaussian = config.composite.per_gaussian and self.medium.is_field and self.medium.has_medium
         self.medium.bind_scene(scene.root, scene.transform)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
@@ -326,10 +324,20 @@ class GaussianPipeline(Pipeline):
         if cfg.random_background:
             bg = step_background(self._seed, step).to(bg)
         cam = dm.camera(idx)
-        out, hazy, med = self._hazy_view(cam, step, bg, stage)
+        with record_function("td.rasterize"):  # stage labels for torch.profiler
+            out = self._rasterize(cam, step, bg)
+        clean = out.rgb[0]  # [H, W, 3]
         depth = out.depth[0]  # [H, W, 1]
         metrics: dict[str, Tensor] = {}  # detached scalars; read by the trainer in one transfer
-        with record_function("td.loss"):
+        with record_function("td.medium"):
+            med = self._medium(cam, out)
+        with record_function("td.composite+loss"):
+            if med is None:
+                hazy = clean
+            else:
+                if med.at_infinity:
+                    clean = self._surface_colour(clean, out, med, bg)
+                hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
             loss, terms = self.loss_fn(hazy, target)
         self._photometric = loss.detach()
         metrics.update({k: v.detach() for k, v in terms.items()})
@@ -361,37 +369,6 @@ class GaussianPipeline(Pipeline):
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
-
-    def _hazy_view(
-        self, cam: Cameras, step: int, bg: Tensor, stage: int
-    ) -> tuple[RasterizeOutput, Tensor, MediumRender | None]:
-        """The training view's render, its hazy composite [H, W, 3] (the gradient policy applied)
-        and its per-pixel medium (None without one)."""
-        if self._per_gaussian:
-            with record_function("td.per-gaussian"):
-                r = render_per_gaussian(
-                    self.model,
-                    self.rasterizer,
-                    self.compositor,
-                    self.medium,
-                    cam,
-                    step,
-                    bg,
-                    self.policy,
-                    stage,
-                )
-            return r.out, r.hazy, r.medium
-        with record_function("td.rasterize"):  # stage labels for torch.profiler
-            out = self._rasterize(cam, step, bg)
-        clean = out.rgb[0]  # [H, W, 3]
-        with record_function("td.medium"):
-            med = self._medium(cam, out)
-        if med is None:
-            return out, clean, None
-        with record_function("td.composite"):
-            if med.at_infinity:
-                clean = self._surface_colour(clean, out, med, bg)
-            return out, composite(self.policy.apply(clean, med.transmittance, stage), med), med
 
     def _medium_priors(
         self, step: int, stage: int, target: Tensor, med: MediumRender, prior: ViewPrior | None, metrics: dict
@@ -487,8 +464,6 @@ class GaussianPipeline(Pipeline):
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:
-        if self._per_gaussian:
-            return self._render_per_gaussian(camera, step)
         out = self._rasterize(camera, step, self.background)
         clean = out.rgb[0]  # [H, W, 3]
         med = self._medium(camera, out)
@@ -508,20 +483,6 @@ class GaussianPipeline(Pipeline):
             "scattering": S.clamp(0, 1),
             "depth": out.depth[0],
             "alpha": out.alpha[0],
-        }
-
-    def _render_per_gaussian(self, camera: Cameras, step: int | None) -> dict[str, Tensor]:
-        r = render_per_gaussian(
-            self.model, self.rasterizer, self.compositor, self.medium, camera,
-            10**9 if step is None else step, self.background, self.policy, stage=1, with_clean=True,
-        )  # fmt: skip
-        return {
-            "clean": self.compositor.clean_view(r.medium, r.clean).clamp(0, 1),
-            "hazy": r.hazy.clamp(0, 1),
-            "transmittance": r.medium.pixel_transmittance(),
-            "scattering": r.medium.scattering.clamp(0, 1),
-            "depth": r.out.depth[0],
-            "alpha": r.out.alpha[0],
         }
 
     def output_names(self) -> list[str]:

@@ -73,7 +73,6 @@ ABLATIONS = [
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
     ("--pipeline.seed-colors", "observed"),
-    ("--pipeline.composite.per-gaussian",),
 ]
 
 
