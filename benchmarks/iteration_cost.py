@@ -6,7 +6,9 @@ optimizer step, i.e. exactly what ``td-train`` runs. Variants are interleaved ro
 load from other users of a shared machine hits all alike; medians and ratios to vanilla-gs are
 reported. The Tri-DehazeGS variants differ in how many rays the medium is marched along
 (``--pipeline.composite.ray-stride``; 1 = every pixel, the naive evaluation) and in how each pixel
-reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``).
+reads them (the compiled read-out, or the torch ops with ``--pipeline.composite.no-fused-readout``),
+and in the medium light (the default's one light with an MLP direction model against the field
+light with SH order 1 it replaced in session 23).
 The default has the depth holds (``--pipeline.composite.depth-gradient
 --pipeline.lambda-depth-metric 0.05``: the gradient into the rendered depth and the metric prior);
 "without the depth holds" turns both off (the default before session 19).
@@ -60,6 +62,7 @@ def variants() -> dict[str, tuple[str, dict]]:
         "tri-dehaze (stride 4)": ("tri-dehaze", {"stride": 4}),
         "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
         "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
+        "tri-dehaze (field light, SH1: before session 23)": ("tri-dehaze", {"light": ("field", "sh")}),
     }
 
 
@@ -80,6 +83,9 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
     )
     if over.get("holds") is False:  # the depth holds off: no gradient into depth, no metric prior
         p = replace(p, lambda_depth_metric=0.0)
+    if "light" in over:  # where the medium light may vary, and its direction model
+        space, light = over["light"]
+        p = replace(p, medium=replace(p.medium, light_space=space, light=light))
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, device, seed=0)
