@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +31,7 @@ from components.data.config import DataConfig
 from components.data.images import read_depth, read_image
 from components.data.loader import check_root, load_scene
 from components.data.ply import write_ply_points
-from components.data.scene import SceneData
+from components.data.scene import DataWarning, SceneData
 from components.synth.generate import torch_threads
 from components.synth.writer import (
     check_output_dir,
@@ -125,6 +126,34 @@ def view_rays(cams: Cameras, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     c2w = cams.camtoworlds[i].double().numpy()
     d = (cam / norm[..., None]) @ c2w[:3, :3].T
     return c2w[:3, 3], d, norm
+
+
+DEPTH_BEYOND_FACTOR = 2.0
+"""A pixel's depth is suspect when it exceeds this multiple of the farthest seed point its view sees."""
+DEPTH_BEYOND_WARN = 0.05
+"""Share of suspect pixels above which ``td-synth haze`` warns."""
+
+
+def depth_beyond_points(cams: Cameras, points: np.ndarray, depths: list[np.ndarray]) -> float | None:
+    """Share of all pixels whose depth [H, W] (z, dataset units) lies beyond ``DEPTH_BEYOND_FACTOR``
+    times the 98th percentile of the camera z of the seed points ``points`` [M, 3] seen by that
+    view (views seeing fewer than 10 points are skipped; None if none is left). A depth run renders
+    a background it never saw at whatever depth its Gaussians drifted to; the haze made with that
+    depth is then out of the photos' reach (docs/results/medium_recovery.md, session 24)."""
+    beyond, total = 0, 0
+    for i, depth in enumerate(depths):
+        c2w = cams.camtoworlds[i].double().numpy()
+        z_pts = (points - c2w[:3, 3]) @ c2w[:3, :3]  # [M, 3] camera coordinates (OpenCV axes)
+        z = z_pts[:, 2]
+        front = z > 1e-9
+        u = z_pts[front, 0] / z[front] * float(cams.fx[i]) + float(cams.cx[i])
+        v = z_pts[front, 1] / z[front] * float(cams.fy[i]) + float(cams.cy[i])
+        seen = z[front][(u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])]
+        if seen.size < 10:
+            continue
+        beyond += int((depth > DEPTH_BEYOND_FACTOR * np.quantile(seen, 0.98)).sum())
+        total += depth.size
+    return beyond / total if total else None
 
 
 @dataclass(frozen=True)
@@ -235,6 +264,17 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
                 fix="pass --depth-from-run RUN/config.yml (e.g. a vanilla-gs run trained on this dataset)",
             )
         t_depth = time.perf_counter() - t0
+        points = scene.points.double().numpy() if scene.points is not None and len(scene.points) else None
+        beyond = depth_beyond_points(scene.cameras, points, depths) if points is not None else None
+        if beyond is not None and beyond > DEPTH_BEYOND_WARN:
+            warnings.warn(
+                f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "
+                "seed point their view sees: the haze there is made for geometry the photos may not "
+                "support (a depth run invents the background it never saw); check the depth maps, "
+                "or treat that part of the set with care",
+                DataWarning,
+                stacklevel=2,
+            )
         rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
         dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
         median_depth = float(np.median(np.concatenate([d.ravel() for d in dists])))
@@ -246,6 +286,9 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
             meta.update(
                 source=str(root),
                 depth_source=source,
+                depth_beyond_points=None
+                if beyond is None
+                else {"factor": DEPTH_BEYOND_FACTOR, "share": beyond},
                 median_distance=median_depth,
                 heterogeneous_field={
                     "h": cfg.heterogeneous,

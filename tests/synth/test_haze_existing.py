@@ -147,3 +147,32 @@ def test_depth_from_a_run_is_in_dataset_units(clean_dataset, tmp_path):
     got = np.load(out / _frames(out)[1]["gt_depth_file_path"])
     ok = expected > 0
     np.testing.assert_allclose(got[ok], expected[ok], rtol=1e-3)
+
+
+def test_a_depth_far_beyond_the_seed_points_is_flagged():
+    """Statue's depth run put its background at 5-15x the SfM points' depth (session 24): such
+    pixels are counted, views that see too few points are skipped."""
+    import torch
+
+    from components.data.cameras import Cameras
+    from components.synth.haze_existing import DEPTH_BEYOND_FACTOR, depth_beyond_points
+
+    H, W = 8, 10
+    cams = Cameras(
+        torch.eye(4)[None].repeat(2, 1, 1), torch.full((2,), 10.0), torch.full((2,), 10.0),
+        torch.full((2,), W / 2), torch.full((2,), H / 2), torch.full((2,), W), torch.full((2,), H),
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+    points = np.stack([rng.uniform(-0.3, 0.3, 50), rng.uniform(-0.3, 0.3, 50), rng.uniform(1.0, 2.0, 50)], -1)
+    near = np.full((H, W), 1.5)
+    far = near.copy()
+    far[:, : W // 2] = 3.0 * DEPTH_BEYOND_FACTOR  # half the view far behind every point
+    assert depth_beyond_points(cams, points, [near, far]) == pytest.approx(0.25)
+    assert depth_beyond_points(cams, points[:5], [near, far]) is None  # too few points to judge
+    behind = points * np.array([1.0, 1.0, -1.0])  # points behind the cameras are not seen
+    assert depth_beyond_points(cams, behind, [near, far]) is None
+
+
+def test_the_depth_check_is_recorded(clean_dataset, tmp_path):
+    meta = haze_dataset(_cfg(clean_dataset, tmp_path / "foggy", beta=0.05))
+    assert meta["depth_beyond_points"]["share"] == pytest.approx(0.0, abs=0.05)
