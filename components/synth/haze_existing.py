@@ -156,6 +156,24 @@ def depth_beyond_points(cams: Cameras, points: np.ndarray, depths: list[np.ndarr
     return beyond / total if total else None
 
 
+def _check_depth(scene: SceneData, depths: list[np.ndarray], source: str) -> dict[str, float] | None:
+    """:func:`depth_beyond_points` of the dataset's seed cloud as ``synth_meta.json`` records it
+    (None without a judgement), with a warning above ``DEPTH_BEYOND_WARN``."""
+    if scene.points is None or not len(scene.points):
+        return None
+    beyond = depth_beyond_points(scene.cameras, scene.points.double().numpy(), depths)
+    if beyond is not None and beyond > DEPTH_BEYOND_WARN:
+        warnings.warn(
+            f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "
+            "seed point their view sees: the haze there is made for geometry the photos may not "
+            "support (a depth run invents the background it never saw); check the depth maps, "
+            "or treat that part of the set with care",
+            DataWarning,
+            stacklevel=3,
+        )
+    return None if beyond is None else {"factor": DEPTH_BEYOND_FACTOR, "share": beyond}
+
+
 @dataclass(frozen=True)
 class WaveField:
     """``f(x) = 1 + h * mean_i sin(w_i . x + phi_i)``: smooth, positive, mean 1."""
@@ -264,17 +282,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
                 fix="pass --depth-from-run RUN/config.yml (e.g. a vanilla-gs run trained on this dataset)",
             )
         t_depth = time.perf_counter() - t0
-        points = scene.points.double().numpy() if scene.points is not None and len(scene.points) else None
-        beyond = depth_beyond_points(scene.cameras, points, depths) if points is not None else None
-        if beyond is not None and beyond > DEPTH_BEYOND_WARN:
-            warnings.warn(
-                f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "
-                "seed point their view sees: the haze there is made for geometry the photos may not "
-                "support (a depth run invents the background it never saw); check the depth maps, "
-                "or treat that part of the set with care",
-                DataWarning,
-                stacklevel=2,
-            )
+        beyond = _check_depth(scene, depths, source)
         rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
         dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
         median_depth = float(np.median(np.concatenate([d.ravel() for d in dists])))
@@ -286,9 +294,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
             meta.update(
                 source=str(root),
                 depth_source=source,
-                depth_beyond_points=None
-                if beyond is None
-                else {"factor": DEPTH_BEYOND_FACTOR, "share": beyond},
+                depth_beyond_points=beyond,
                 median_distance=median_depth,
                 heterogeneous_field={
                     "h": cfg.heterogeneous,
