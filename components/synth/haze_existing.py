@@ -25,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from torch import Tensor
 
 from components.data.cameras import Cameras
 from components.data.config import DataConfig
@@ -32,6 +33,7 @@ from components.data.images import read_depth, read_image
 from components.data.loader import check_root, load_scene
 from components.data.ply import write_ply_points
 from components.data.scene import DataWarning, SceneData
+from components.losses.depth_priors import in_image, project_points
 from components.synth.generate import torch_threads
 from components.synth.writer import (
     check_output_dir,
@@ -134,21 +136,17 @@ DEPTH_BEYOND_WARN = 0.05
 """Share of suspect pixels above which ``td-synth haze`` warns."""
 
 
-def depth_beyond_points(cams: Cameras, points: np.ndarray, depths: list[np.ndarray]) -> float | None:
+def depth_beyond_points(cams: Cameras, points: Tensor, depths: list[np.ndarray]) -> float | None:
     """Share of all pixels whose depth [H, W] (z, dataset units) lies beyond ``DEPTH_BEYOND_FACTOR``
     times the 98th percentile of the camera z of the seed points ``points`` [M, 3] seen by that
     view (views seeing fewer than 10 points are skipped; None if none is left). A depth run renders
     a background it never saw at whatever depth its Gaussians drifted to; the haze made with that
     depth is then out of the photos' reach (docs/results/medium_recovery.md, session 24)."""
     beyond, total = 0, 0
+    viewmats, Ks = cams.viewmats().to(points), cams.Ks().to(points)  # noqa: N806
     for i, depth in enumerate(depths):
-        c2w = cams.camtoworlds[i].double().numpy()
-        z_pts = (points - c2w[:3, 3]) @ c2w[:3, :3]  # [M, 3] camera coordinates (OpenCV axes)
-        z = z_pts[:, 2]
-        front = z > 1e-9
-        u = z_pts[front, 0] / z[front] * float(cams.fx[i]) + float(cams.cx[i])
-        v = z_pts[front, 1] / z[front] * float(cams.fy[i]) + float(cams.cy[i])
-        seen = z[front][(u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])]
+        pc, uv = project_points(points, viewmats[i], Ks[i])  # [M, 3], [M, 2]
+        seen = pc[in_image(pc, uv, depth.shape[1], depth.shape[0], near=1e-9), 2].numpy()  # [S]
         if seen.size < 10:
             continue
         beyond += int((depth > DEPTH_BEYOND_FACTOR * np.quantile(seen, 0.98)).sum())
@@ -161,7 +159,7 @@ def _check_depth(scene: SceneData, depths: list[np.ndarray], source: str) -> dic
     (None without a judgement), with a warning above ``DEPTH_BEYOND_WARN``."""
     if scene.points is None or not len(scene.points):
         return None
-    beyond = depth_beyond_points(scene.cameras, scene.points.double().numpy(), depths)
+    beyond = depth_beyond_points(scene.cameras, scene.points.double(), depths)
     if beyond is not None and beyond > DEPTH_BEYOND_WARN:
         warnings.warn(
             f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "

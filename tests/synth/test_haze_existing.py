@@ -163,13 +163,17 @@ def test_a_depth_far_beyond_the_seed_points_is_flagged():
         torch.full((2,), W / 2), torch.full((2,), H / 2), torch.full((2,), W), torch.full((2,), H),
     )  # fmt: skip
     rng = np.random.default_rng(0)
-    points = np.stack([rng.uniform(-0.3, 0.3, 50), rng.uniform(-0.3, 0.3, 50), rng.uniform(1.0, 2.0, 50)], -1)
+    points = torch.from_numpy(
+        np.stack([rng.uniform(-0.3, 0.3, 50), rng.uniform(-0.3, 0.3, 50), rng.uniform(1.0, 2.0, 50)], -1)
+    )
     near = np.full((H, W), 1.5)
     far = near.copy()
     far[:, : W // 2] = 3.0 * DEPTH_BEYOND_FACTOR  # half the view far behind every point
     assert depth_beyond_points(cams, points, [near, far]) == pytest.approx(0.25)
     assert depth_beyond_points(cams, points[:5], [near, far]) is None  # too few points to judge
-    behind = points * np.array([1.0, 1.0, -1.0])  # points behind the cameras are not seen
+    behind = points * torch.tensor(
+        [1.0, 1.0, -1.0], dtype=points.dtype
+    )  # points behind the cameras are not seen
     assert depth_beyond_points(cams, behind, [near, far]) is None
 
 
