@@ -111,27 +111,18 @@ class AblationRunner:
             "code": code_fingerprint(),
         }
 
-    def _stored(self, job: Job) -> dict[str, Any] | None:
-        path = self.result_path(job)
-        if not path.is_file():
-            return None
-        try:
-            return json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
-            return None
-
     def finished(self, job: Job) -> dict[str, Any] | None:
         """The stored result when it exists and was made with the same settings and code, else None."""
-        result = self._stored(job)
-        return result if result is not None and result.get("signature") == self.signature(job) else None
+        result = _read_json(self.result_path(job))
+        return result if result.get("signature") == self.signature(job) else None
 
     def state(self, job: Job) -> str:
         """``done``, ``other code`` (a stored result of these settings made by other code: it is run
         again) or ``to run``, for dry runs."""
-        if self.finished(job) is not None:
-            return "done"
-        stored = (self._stored(job) or {}).get("signature") or {}
         ours = self.signature(job)
+        stored = _read_json(self.result_path(job)).get("signature") or {}
+        if stored == ours:
+            return "done"
         same_settings = {k: v for k, v in stored.items() if k != "code"} == {
             k: v for k, v in ours.items() if k != "code"
         }
