@@ -243,13 +243,27 @@ class MediumField(nn.Module):
 
 DIR_OCTAVES = 3
 """Octaves of the direction encoding of the ``mlp`` light (sin / cos of 2^k pi v, k < 3)."""
-DIR_ENCODING_DIM = 3 + 6 * DIR_OCTAVES
+
+
+def fourier_dim(octaves: int, dim: int = 3) -> int:
+    """Width of :func:`fourier_encode` for ``dim`` input coordinates."""
+    return dim * (1 + 2 * octaves)
+
+
+DIR_ENCODING_DIM = fourier_dim(DIR_OCTAVES)
+
+
+def fourier_encode(x: Tensor, octaves: int) -> Tensor:
+    """[P, D] -> [P, D (1 + 2 K)]: x, then sin and cos of 2^k pi x for k < K (NeRF's positional
+    encoding), octave-major. One encoding for the ``mlp`` light's directions and the ``fourier``
+    field's box coordinates."""
+    scaled = torch.cat([x * (math.pi * 2.0**k) for k in range(octaves)], dim=-1)  # [P, D K]
+    return torch.cat([x, scaled.sin(), scaled.cos()], dim=-1)
 
 
 def encode_direction(dirs: Tensor) -> Tensor:
-    """Unit directions [P, 3] -> [P, 3 + 6 * DIR_OCTAVES]: v with sin and cos of 2^k pi v."""
-    scaled = torch.cat([dirs * (math.pi * 2.0**k) for k in range(DIR_OCTAVES)], dim=-1)  # [P, 3K]
-    return torch.cat([dirs, scaled.sin(), scaled.cos()], dim=-1)
+    """Unit directions [P, 3] -> [P, DIR_ENCODING_DIM] for the ``mlp`` light."""
+    return fourier_encode(dirs, DIR_OCTAVES)
 
 
 class MediumHeads(nn.Module):

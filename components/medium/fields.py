@@ -8,13 +8,19 @@ planes together, so the comparison is about the factorisation, not the parameter
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumHeads, MediumSample
+from components.medium.base import (
+    FieldBounds,
+    MediumConfig,
+    MediumField,
+    MediumHeads,
+    MediumSample,
+    fourier_dim,
+    fourier_encode,
+)
 from tridehaze_plugin.registry import register
 
 GRID_INIT_STD = 0.1
@@ -125,19 +131,12 @@ class FourierField(HeadedField):
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
         super().__init__(config, bounds)
         self.num_frequencies = int(config.num_frequencies)
-        self.register_buffer(
-            "freqs",
-            math.pi * 2.0 ** torch.arange(self.num_frequencies, dtype=torch.float32),
-            persistent=False,
-        )
-        self.encoder = _coord_mlp(3 * (1 + 2 * self.num_frequencies), int(config.hidden))
+        self.encoder = _coord_mlp(fourier_dim(self.num_frequencies), int(config.hidden))
         self.feature_dim = int(config.hidden)
         self._build_heads()
 
     def encode(self, x: Tensor) -> Tensor:
-        n = self.bounds.normalize(x)  # [P, 3]
-        ang = (n.unsqueeze(-1) * self.freqs.to(n)).flatten(1)  # [P, 3L]
-        return self.encoder(torch.cat([n, ang.sin(), ang.cos()], dim=-1))  # [P, hidden]
+        return self.encoder(fourier_encode(self.bounds.normalize(x), self.num_frequencies))  # [P, hidden]
 
 
 class ConstantField(HeadedField):

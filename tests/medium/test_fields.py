@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from torch.nn import functional as F
 
 import components.medium  # noqa: F401  (registers the backends)
-from components.medium.base import FieldBounds, MediumConfig, MediumField
+from components.medium.base import (
+    DIR_ENCODING_DIM,
+    DIR_OCTAVES,
+    FieldBounds,
+    MediumConfig,
+    MediumField,
+    encode_direction,
+    fourier_dim,
+    fourier_encode,
+)
 from components.medium.fields import TriplaneField, VoxelField
 from tridehaze_plugin.registry import REGISTRY
 
@@ -266,6 +277,17 @@ def test_voxel_matches_the_triplane_budget(device) -> None:
 def test_fourier_input_width(device) -> None:
     field = _make("fourier", device, num_frequencies=4)
     assert field.encoder[0].in_features == 3 * (1 + 2 * 4)
+
+
+def test_fourier_encode_values() -> None:
+    """The shared encoding: x, then sin / cos of 2^k pi x, octave-major (light and fourier field)."""
+    x = torch.tensor([[0.25, -0.5, 1.0]])
+    enc = fourier_encode(x, 2)  # [1, 15]
+    assert enc.shape == (1, fourier_dim(2)) == (1, 15)
+    ang = torch.tensor([[0.25, -0.5, 1.0, 0.5, -1.0, 2.0]]) * math.pi  # octave 0, then octave 1
+    torch.testing.assert_close(enc, torch.cat([x, ang.sin(), ang.cos()], dim=-1))
+    torch.testing.assert_close(encode_direction(x), fourier_encode(x, DIR_OCTAVES))
+    assert DIR_ENCODING_DIM == fourier_dim(DIR_OCTAVES)
 
 
 @pytest.mark.parametrize("backend", ["triplane", "voxel"])
