@@ -199,6 +199,14 @@ class MediumField(nn.Module):
     def forward(self, x: Tensor, dirs: Tensor) -> MediumSample:  # x, dirs: [P, 3]
         raise NotImplementedError
 
+    def sample_rays(self, pts: Tensor, dirs: Tensor) -> MediumSample:
+        """The field along R rays of K samples each: pts [R, K, 3], dirs [R, 3] unit (one per
+        ray) -> beta [R, K], light [R, K, 3]. The march calls this; a field whose light depends
+        on the direction alone overrides it to evaluate the light once per ray, not per sample."""
+        R, K = pts.shape[:2]
+        flat = self(pts.reshape(-1, 3), dirs[:, None, :].expand(-1, K, -1).reshape(-1, 3))
+        return MediumSample(beta=flat.beta.reshape(R, K), light=flat.light.reshape(R, K, 3))
+
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Trainable tensors by name with learning rates (names prefixed ``medium.``)."""
         return {}
@@ -315,7 +323,7 @@ class MediumHeads(nn.Module):
         """The light head's input per point [P, *]: the field's features, the box coordinates or
         the global feature, with the encoded direction appended for the ``mlp`` light."""
         if self.light_space == "global":
-            light_in = self.light_feature.to(feat)[None].expand(feat.shape[0], -1)  # [P, F]
+            light_in = self.light_feature.to(feat)[None].expand(dirs.shape[0], -1)  # [P, F]
         elif self.light_space == "smooth":
             if coords is None:
                 raise ValueError("a smooth medium light needs the points' box coordinates")
@@ -326,16 +334,30 @@ class MediumHeads(nn.Module):
             light_in = torch.cat([light_in, encode_direction(dirs.to(feat))], dim=-1)
         return light_in
 
-    def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
-        """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)
-        -> beta [P], light [P, 3]."""
-        beta = self.kappa * F.softplus(self.beta_head(feat)[..., 0])  # [P]
+    @property
+    def light_depends_on_position(self) -> bool:
+        """False for a ``global`` light: a function of the direction alone, so a ray's samples share
+        it (:meth:`MediumField.sample_rays` evaluates it once per ray)."""
+        return self.light_space != "global"
+
+    def extinction(self, feat: Tensor) -> Tensor:
+        """feat [P, F] -> beta [P]."""
+        return self.kappa * F.softplus(self.beta_head(feat)[..., 0])
+
+    def light(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> Tensor:
+        """feat [P, F] (only its dtype is read for a ``global`` light, and P then may be any
+        count matching dirs), dirs [P, 3] unit, coords [P, 3] (``smooth`` only) -> light [P, 3]."""
         if self.light_space == "global" and self.light_mode != "mlp":
             # one input for every point: evaluate the head once
-            raw = self.light_head(self.light_feature.to(feat))[None].expand(feat.shape[0], -1)
+            raw = self.light_head(self.light_feature.to(feat))[None].expand(dirs.shape[0], -1)
         else:
             raw = self.light_head(self._light_input(feat, dirs, coords))  # [P, n_light]
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]
-        return MediumSample(beta=beta, light=torch.sigmoid(raw))
+        return torch.sigmoid(raw)
+
+    def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
+        """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)
+        -> beta [P], light [P, 3]."""
+        return MediumSample(beta=self.extinction(feat), light=self.light(feat, dirs, coords))

@@ -278,10 +278,9 @@ class MediumCompositor:
         u = (torch.arange(K, device=z.device, dtype=z.dtype) + 0.5) / K  # [K]
         zs = zfar[..., None] * u  # [h, w, K]
         pts = origin + zs[..., None] * dirs[:, :, None, :]  # [h, w, K, 3]
-        unit = (dirs / step_len[..., None])[:, :, None, :].expand(-1, -1, K, -1)  # [h, w, K, 3]
-        sample = field(pts.reshape(-1, 3), unit.reshape(-1, 3))
-        beta = sample.beta.reshape(h * w, K)  # [R, K]
-        light = sample.light.reshape(h * w, K, 3)  # [R, K, 3]
+        unit = (dirs / step_len[..., None]).reshape(-1, 3)  # [R, 3]
+        sample = field.sample_rays(pts.reshape(h * w, K, 3), unit)
+        beta, light = sample.beta, sample.light  # [R, K], [R, K, 3]
         dz = (zfar / K).reshape(-1)  # [R] interval length in z
         tau = beta * (dz * step_len.reshape(-1))[:, None]  # [R, K] optical depth per interval
         Tau = torch.cat([tau.new_zeros(h * w, 1), torch.cumsum(tau, dim=1)], dim=1)  # [R, K+1]

@@ -42,6 +42,15 @@ class HeadedField(MediumField):
         coords = self.bounds.normalize(x) if self.heads.light_space == "smooth" else None  # [P, 3]
         return self.heads(self.encode(x), dirs, coords)
 
+    def sample_rays(self, pts: Tensor, dirs: Tensor) -> MediumSample:
+        if self.heads.light_depends_on_position:
+            return super().sample_rays(pts, dirs)
+        R, K = pts.shape[:2]
+        feat = self.encode(pts.reshape(-1, 3))  # [R K, F]
+        beta = self.heads.extinction(feat).reshape(R, K)
+        light = self.heads.light(feat, dirs)  # [R, 3]: the ray's samples share it
+        return MediumSample(beta=beta, light=light[:, None, :].expand(-1, K, -1))
+
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """One entry per parameter (one optimizer each); only log(kappa) has its own lr."""
         cfg = self.config

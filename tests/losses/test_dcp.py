@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 from components.losses.dcp import (
     box_guided_filter,
@@ -13,6 +14,7 @@ from components.losses.dcp import (
     dehaze,
     estimate_dcp,
     guided_filter,
+    min_filter,
 )
 
 AIRLIGHT = np.array([0.8, 0.85, 0.9], np.float32)
@@ -198,3 +200,17 @@ def test_a_known_airlight_replaces_the_estimate_where_no_pixel_is_opaque():
     assert err_given < 0.03 < err_estimated
     # the raw dark channel is the input's, whichever light is used
     np.testing.assert_array_equal(given.dark, estimated.dark)
+
+
+@pytest.mark.parametrize(
+    "shape,patch", [((240, 320), 7), ((72, 96), 3), ((5, 3), 7), ((1, 1), 3), ((31, 17), 15)]
+)
+def test_min_filter_equals_max_pool(shape: tuple[int, int], patch: int) -> None:
+    """The separable doubling min filter gives max_pool2d's min exactly, borders and patches
+    larger than the image included (it replaced max_pool2d in the per-step bound)."""
+    x = torch.rand(*shape, generator=torch.Generator().manual_seed(patch))
+    x[0, 0] = 0.5  # ties between neighbours
+    if x.numel() > 1:
+        x.view(-1)[1] = 0.5
+    ref = -F.max_pool2d(-x[None, None], patch, stride=1, padding=patch // 2)[0, 0]
+    assert torch.equal(min_filter(x, patch), ref)

@@ -349,3 +349,35 @@ def test_gaussian_bound_pixel_medium_is_over_compositing(device) -> None:
     expect = torch.stack([value, field.background.detach(), 0.25 * value + 0.75 * field.background.detach()])
     torch.testing.assert_close(beta[:, 0], kappa * F.softplus(expect[:, 0]))
     torch.testing.assert_close(light[:, 0], torch.sigmoid(expect[:, 1:]))
+
+
+@pytest.mark.parametrize("backend", FIELDS)
+@pytest.mark.parametrize(
+    "light", [("global", "mlp"), ("global", "sh"), ("global", "rgb"), ("field", "sh"), ("smooth", "mlp")]
+)
+def test_sample_rays_matches_per_sample_evaluation(device, backend: str, light: tuple[str, str]) -> None:
+    """The march's per-ray evaluation (a global light once per ray) gives the values and gradients
+    of evaluating every sample with its ray's direction (MediumField's generic path)."""
+    space, mode = light
+    field = _make(backend, device, light_space=space, light=mode)
+    _perturb_heads(field)
+    x, d = _points(device, n=6 * 5)
+    pts, dirs = x.reshape(6, 5, 3), d[::5]  # [R, K, 3], [R, 3]: 6 rays of 5 samples
+
+    def run(fn) -> tuple[torch.Tensor, ...]:
+        field.zero_grad()
+        s = fn(pts, dirs)
+        (s.beta.sum() + (s.light * torch.linspace(0.5, 1.5, 3, device=device)).sum()).backward()
+        grads = [p.grad.clone() for p in field.parameters() if p.grad is not None]
+        return (s.beta.detach(), s.light.detach(), *grads)
+
+    fast = run(field.sample_rays)
+    generic = run(lambda p, v: MediumField.sample_rays(field, p, v))
+    assert fast[0].shape == (6, 5) and fast[1].shape == (6, 5, 3)
+    assert len(fast) == len(generic) > 2
+    for a, b in zip(fast, generic, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    if space == "global":  # the light is shared along a ray, and differs between rays (mlp, sh)
+        torch.testing.assert_close(fast[1], fast[1][:, :1].expand(-1, 5, -1))
+        if mode != "rgb":
+            assert (fast[1][0, 0] - fast[1][1, 0]).abs().max() > 1e-4
