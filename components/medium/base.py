@@ -290,7 +290,10 @@ class MediumHeads(nn.Module):
         self.light_space = config.light_space
         light_in = (3 if self.light_space == "smooth" else in_dim) + dir_in  # smooth: box coordinates
         self.light_head = nn.Sequential(nn.Linear(light_in, h), nn.ReLU(), nn.Linear(h, n_light))
-        # a global light reads one learnt feature vector instead of the point's features
+        # a global light reads one learnt feature vector instead of the point's features. With the
+        # ``mlp`` light it only adds a constant to the first layer's pre-activation (redundant with
+        # its bias); it stays so every global mode keeps one parametrisation, since dropping it would
+        # change the initial direction sensitivity and Adam's steps of the measured default
         self.light_feature = (
             nn.Parameter(torch.randn(in_dim) * 0.1) if self.light_space == "global" else None
         )  # [F]
