@@ -265,6 +265,8 @@ def fourier_encode(x: Tensor, octaves: int) -> Tensor:
     """[P, D] -> [P, D (1 + 2 K)]: x, then sin and cos of 2^k pi x for k < K (NeRF's positional
     encoding), octave-major. One encoding for the ``mlp`` light's directions and the ``fourier``
     field's box coordinates."""
+    if octaves == 0:
+        return x
     scaled = torch.cat([x * (math.pi * 2.0**k) for k in range(octaves)], dim=-1)  # [P, D K]
     return torch.cat([x, scaled.sin(), scaled.cos()], dim=-1)
 

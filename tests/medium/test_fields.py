@@ -287,6 +287,9 @@ def test_fourier_encode_values() -> None:
     ang = torch.tensor([[0.25, -0.5, 1.0, 0.5, -1.0, 2.0]]) * math.pi  # octave 0, then octave 1
     torch.testing.assert_close(enc, torch.cat([x, ang.sin(), ang.cos()], dim=-1))
     torch.testing.assert_close(encode_direction(x), fourier_encode(x, DIR_OCTAVES))
+    assert torch.equal(fourier_encode(x, 0), x) and fourier_dim(0) == 3  # --num-frequencies 0
+    field = _make("fourier", torch.device("cpu"), num_frequencies=0)
+    assert field(*_points(torch.device("cpu"), n=4)).beta.shape == (4,)
     assert DIR_ENCODING_DIM == fourier_dim(DIR_OCTAVES)
 
 
