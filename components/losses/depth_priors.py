@@ -12,11 +12,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from components.data.images import check_map_fits, read_depth
-from components.losses.dcp import DCPResult, estimate_dcp
+from components.losses.dcp import DCPResult, estimate_dcp, min_filter
 
 DCP_T_MAX = 0.99
 """Above this the DCP transmittance carries no depth: the pixel is dark or haze-free (t ~ 1 is
@@ -135,7 +134,7 @@ def depth_from_sfm(
     if occlusion_window > 1 and valid.any():
         big = torch.where(valid, zbuf, torch.full_like(zbuf, torch.finfo(dtype).max))
         w = int(occlusion_window) | 1
-        local_min = -F.max_pool2d(-big[None, None], w, stride=1, padding=w // 2)[0, 0]  # [H, W]
+        local_min = min_filter(big, w)  # [H, W]
         valid = valid & (zbuf <= local_min * (1.0 + occlusion_tol))
     prior = torch.where(valid, zbuf, torch.zeros_like(zbuf)).float()
     return prior, valid
