@@ -30,14 +30,18 @@ _warned: set[str] = set()
 
 
 def default_threads() -> int:
-    """``$TRIDEHAZE_CPU_THREADS``, else the cores this process may run on."""
+    """``$TRIDEHAZE_CPU_THREADS``, else torch's intra-op threads (at most the cores this process may
+    run on), so ``td-train --threads N`` bounds the kernel too. Taking every core regardless made
+    each of a sweep's parallel runs start one kernel thread per core: two runs on 2 cores trained
+    1.55x slower, and sixteen on a 16-core host stalled (docs/rasterizer.md "Thread settings")."""
     env = os.environ.get(THREADS_ENV_VAR)
     if env:
         return max(1, int(env))
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, torch.get_num_threads()))
 
 
 def _warn_once(reason: str) -> None:

@@ -92,7 +92,8 @@ class TrainerConfig:
     device: str = "auto"
     """Torch device: ``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda`` or ``cuda:N``."""
     threads: Annotated[int | None, Range(1)] = None
-    """CPU threads for torch (default: all cores). Oversubscription costs 2-5x on shared machines."""
+    """CPU threads for torch and the CPU rasterizer's kernel (default: all cores). Oversubscription
+    costs 2-5x on shared machines."""
     steps_per_log: Annotated[int, Range(1)] = 10
     """Write a line of metrics to logs/metrics.jsonl every N steps."""
     steps_per_save: Annotated[int, Range(1)] = 1000

@@ -106,3 +106,24 @@ def test_wrong_shapes_fail_readably() -> None:
         rast.rasterize(args[0], torch.zeros(n, 3), *args[2:], *cams, 8, 8)
     with pytest.raises(ValueError, match="SH coefficients"):
         rast.rasterize(*args, *cams, 8, 8, sh_degree=1)
+
+
+def test_kernel_threads_follow_torch_threads_and_the_env_var_overrides(monkeypatch) -> None:
+    """``td-train --threads 1`` in each of a sweep's parallel runs must mean one kernel thread too
+    (every core per run trained two runs on 2 cores 1.55x slower)."""
+    from components.rasterizers import cpu_rasterizer
+
+    monkeypatch.delenv(cpu_rasterizer.THREADS_ENV_VAR, raising=False)
+    monkeypatch.setattr(cpu_rasterizer.os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert cpu_rasterizer.default_threads() == 1
+        torch.set_num_threads(3)
+        assert cpu_rasterizer.default_threads() == 3
+        monkeypatch.setattr(cpu_rasterizer.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+        assert cpu_rasterizer.default_threads() == 2  # never more than the cores it may use
+        monkeypatch.setenv(cpu_rasterizer.THREADS_ENV_VAR, "5")
+        assert cpu_rasterizer.default_threads() == 5
+    finally:
+        torch.set_num_threads(before)

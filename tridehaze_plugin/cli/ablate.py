@@ -52,7 +52,8 @@ class AblateArgs(SweepExecutorArgs):
     jobs: int = 2
     """Runs in parallel (separate processes)."""
     threads: int = 1
-    """Torch threads per run (jobs x threads should not exceed the cores)."""
+    """CPU threads per run, torch's and the rasterizer kernel's (jobs x threads should not exceed the
+    cores)."""
     seed: Annotated[int, SEED_RANGE] = 42
     """Seed of every run."""
     bins: Literal["auto", "model", "reference", "none"] = "reference"

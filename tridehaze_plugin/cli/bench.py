@@ -67,7 +67,7 @@ class TradeoffArgs(SweepExecutorArgs):
     jobs: int = 2
     """Runs in parallel (separate processes)."""
     threads: int = 1
-    """Torch threads per run."""
+    """CPU threads per run, torch's and the rasterizer kernel's."""
     seed: Annotated[int, SEED_RANGE] = 42
     """Seed of every run."""
     lpips: Literal["auto", "on", "off"] = "auto"
@@ -233,7 +233,7 @@ class ProbeArgs:
     jobs: int = 2
     """Training runs in parallel (with --restoration)."""
     threads: int = 1
-    """Torch threads per run."""
+    """CPU threads per run, torch's and the rasterizer kernel's."""
 
 
 def probe(args: ProbeArgs) -> None:
@@ -310,7 +310,7 @@ class RestorationArgs:
     jobs: Annotated[int, Range(1)] = 2
     """Runs in parallel (separate processes)."""
     threads: Annotated[int, Range(1)] = 1
-    """Torch threads per run."""
+    """CPU threads per run, torch's and the rasterizer kernel's."""
     lpips: Literal["auto", "on", "off"] = "auto"
     """LPIPS in the evaluation."""
     train_args: str = ""
