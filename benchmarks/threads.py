@@ -7,7 +7,14 @@ shared machine hits all of them alike; ratios against the default are the number
 
     python benchmarks/threads.py --data ../shared/data/real/statue --downscale 8 --steps 200
 
-Writes ``benchmarks/results/threads.{json,csv,png}``.
+With ``--concurrent N`` each setting runs N identical trainings at once, as ``td-bench`` and
+``td-ablate`` run their jobs (``--threads 1`` each), and compares where the CPU rasterizer's kernel
+threads come from: every core (the default before session 26) or torch's threads (now):
+
+    python benchmarks/threads.py --data SCENE --downscale 1 --method tri-dehaze --concurrent 2
+
+Writes ``benchmarks/results/threads.{json,csv,png}`` (``threads_concurrent<N>.*`` with
+``--concurrent``).
 """
 
 from __future__ import annotations
@@ -29,22 +36,44 @@ SETTINGS: dict[str, dict[str, str]] = {
     "torch 2, OMP 2": {"--threads": "2", "OMP_NUM_THREADS": "2"},
     "torch 2, OMP passive": {"--threads": "2", "OMP_WAIT_POLICY": "PASSIVE"},
 }
+CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+SWEEP_SETTINGS: dict[str, dict[str, str]] = {
+    "torch 1, kernel 1 (follows --threads)": {"--threads": "1", "OMP_NUM_THREADS": "1"},
+    f"torch 1, kernel {CORES} (every core, before)": {
+        "--threads": "1",
+        "OMP_NUM_THREADS": "1",
+        "TRIDEHAZE_CPU_THREADS": str(CORES),
+    },
+}
+"""Settings of ``--concurrent``: each of a sweep's runs is given ``--threads 1``."""
 
 
 def run_once(setting: dict[str, str], args: argparse.Namespace, out: Path) -> float:
+    """Seconds per step of one training in ``setting``; with ``--concurrent N``, the median over N
+    identical trainings started together."""
     env = dict(os.environ)
     cli = ["td-train", args.method, "--data", str(args.data), "--downscale", str(args.downscale)]
-    cli += ["--max-steps", str(args.steps), "--output-dir", str(out), "--no-eval-at-end"]
+    cli += ["--max-steps", str(args.steps), "--no-eval-at-end"]
     for key, value in setting.items():
         if key.startswith("--"):
             cli += [key, value]
         else:
             env[key] = value
-    res = subprocess.run(cli, capture_output=True, text=True, env=env, check=True)
-    m = re.search(r"train_seconds ([0-9.]+)", res.stdout)
-    if not m:
-        raise RuntimeError(f"no timing in output:\n{res.stdout}\n{res.stderr}")
-    return float(m.group(1)) / args.steps
+    procs = [
+        subprocess.Popen(
+            [*cli, "--output-dir", str(out / str(i))], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, env=env,
+        )
+        for i in range(args.concurrent)
+    ]  # fmt: skip
+    per_step = []
+    for proc in procs:
+        stdout, stderr = proc.communicate()
+        m = re.search(r"train_seconds ([0-9.]+)", stdout)
+        if proc.returncode != 0 or not m:
+            raise RuntimeError(f"no timing in output:\n{stdout}\n{stderr}")
+        per_step.append(float(m.group(1)) / args.steps)
+    return statistics.median(per_step)
 
 
 def main() -> None:
@@ -55,19 +84,22 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    ap.add_argument("--concurrent", type=int, default=1, help="trainings run at once per setting")
     args = ap.parse_args()
 
-    times: dict[str, list[float]] = {name: [] for name in SETTINGS}
+    settings = SETTINGS if args.concurrent == 1 else SWEEP_SETTINGS
+    stem = "threads" if args.concurrent == 1 else f"threads_concurrent{args.concurrent}"
+    times: dict[str, list[float]] = {name: [] for name in settings}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
-            for name, setting in SETTINGS.items():
+            for name, setting in settings.items():
                 times[name].append(run_once(setting, args, Path(tmp)))
                 print(
-                    f"round {r + 1}/{args.rounds}  {name:28s} {times[name][-1] * 1e3:7.1f} ms/step",
+                    f"round {r + 1}/{args.rounds}  {name:40s} {times[name][-1] * 1e3:7.1f} ms/step",
                     flush=True,
                 )
 
-    base = statistics.median(times[next(iter(SETTINGS))])
+    base = statistics.median(times[next(iter(settings))])
     rows = [
         {
             "setting": name,
@@ -78,17 +110,23 @@ def main() -> None:
         }
         for name, t in times.items()
     ]
-    print(f"\n{'setting':28s} {'median ms/step':>15s} {'min':>8s} {'vs default':>11s}")
+    print(f"\n{'setting':40s} {'median ms/step':>15s} {'min':>8s} {'vs default':>11s}")
     for row in rows:
         print(
-            f"{row['setting']:28s} {row['median_ms_per_step']:15.1f} {row['min_ms_per_step']:8.1f} "
+            f"{row['setting']:40s} {row['median_ms_per_step']:15.1f} {row['min_ms_per_step']:8.1f} "
             f"{row['ratio_vs_default']:10.2f}x"
         )
 
+    write_outputs(rows, args, stem)
+
+
+def write_outputs(rows: list[dict], args: argparse.Namespace, stem: str) -> None:
+    """The table as JSON and CSV, and a bar plot where matplotlib is installed."""
     args.out.mkdir(parents=True, exist_ok=True)
-    meta = {"method": args.method, "data": str(args.data), "downscale": args.downscale, "steps": args.steps}
-    (args.out / "threads.json").write_text(json.dumps({"config": meta, "results": rows}, indent=2))
-    with (args.out / "threads.csv").open("w", newline="") as fh:
+    meta = {"method": args.method, "data": str(args.data), "downscale": args.downscale, "steps": args.steps,
+            "concurrent": args.concurrent, "cores": CORES}  # fmt: skip
+    (args.out / f"{stem}.json").write_text(json.dumps({"config": meta, "results": rows}, indent=2))
+    with (args.out / f"{stem}.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
@@ -103,10 +141,13 @@ def main() -> None:
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.barh([r["setting"] for r in rows], [r["median_ms_per_step"] for r in rows], color="#4a7fb5")
     ax.set_xlabel("ms per training step (median)")
-    ax.set_title(f"{args.method}, {Path(args.data).name} /{args.downscale}, {args.steps} steps, 2 cores")
+    runs = f", {args.concurrent} at once" if args.concurrent > 1 else ""
+    ax.set_title(
+        f"{args.method}, {Path(args.data).name} /{args.downscale}, {args.steps} steps{runs}, {CORES} cores"
+    )
     fig.tight_layout()
-    fig.savefig(args.out / "threads.png", dpi=120)
-    print(f"wrote {args.out}/threads.{{json,csv,png}}")
+    fig.savefig(args.out / f"{stem}.png", dpi=120)
+    print(f"wrote {args.out}/{stem}.{{json,csv,png}}")
 
 
 if __name__ == "__main__":
