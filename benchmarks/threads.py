@@ -143,7 +143,8 @@ def write_outputs(rows: list[dict], args: argparse.Namespace, stem: str) -> None
     ax.set_xlabel("ms per training step (median)")
     runs = f", {args.concurrent} at once" if args.concurrent > 1 else ""
     ax.set_title(
-        f"{args.method}, {Path(args.data).name} /{args.downscale}, {args.steps} steps{runs}, {CORES} cores"
+        f"{args.method}, {Path(args.data).name} /{args.downscale}, {args.steps} steps{runs}, {CORES} cores",
+        fontsize=9,
     )
     fig.tight_layout()
     fig.savefig(args.out / f"{stem}.png", dpi=120)
