@@ -159,12 +159,17 @@ def tri_dehaze_paper() -> TrainerConfig:
 @method(
     "tri-dehaze-quality",
     (
-        "Tri-DehazeGS for the best clean scene: 3000 steps with slower densification (grow-grad2d "
-        "4e-4), a 128^2 tri-plane and 4800 coarse rays per step." + MEASURED
+        "Tri-DehazeGS with a finer medium and slower densification: 3000 steps, grow-grad2d 4e-4, a "
+        "128^2 tri-plane and 4800 coarse rays per step. It led an early trade-off study on LPIPS, "
+        "but on the 8-scene restoration benchmark with the current settings it restores worse than "
+        "tri-dehaze at about twice the time (docs/results/medium_recovery.md, session 26): prefer "
+        "tri-dehaze." + MEASURED
     ),
 )
 def tri_dehaze_quality() -> TrainerConfig:
-    """The ``quality`` point of the measured speed-accuracy front (``td-bench tradeoff`` measures it)."""
+    """The ``quality`` point of the early speed-accuracy front (``td-bench tradeoff``); worse than
+    ``tri-dehaze`` on ``td-bench restoration`` since the default's session 19-23 changes (session 26:
+    fewer Gaussians underfit, and the finer medium loses in the rooms)."""
     return _tri_dehaze_variant(
         "tri-dehaze-quality", 3000,
         densify=dict(grow_grad2d=4e-4), medium=dict(resolution=128), composite=dict(coarse_rays=4800),
