@@ -32,8 +32,8 @@ _warned: set[str] = set()
 def default_threads() -> int:
     """``$TRIDEHAZE_CPU_THREADS``, else torch's intra-op threads (at most the cores this process may
     run on), so ``td-train --threads N`` bounds the kernel too. Taking every core regardless made
-    each of a sweep's parallel runs start one kernel thread per core: two runs on 2 cores trained
-    1.55x slower, and sixteen on a 16-core host stalled (docs/rasterizer.md "Thread settings")."""
+    each of a sweep's parallel runs start one kernel thread per core: two runs at once on 2 cores
+    stepped 1.41x slower, and sixteen on a 16-core host stalled (docs/rasterizer.md "Thread settings")."""
     env = os.environ.get(THREADS_ENV_VAR)
     if env:
         return max(1, int(env))

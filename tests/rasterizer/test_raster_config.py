@@ -110,7 +110,7 @@ def test_wrong_shapes_fail_readably() -> None:
 
 def test_kernel_threads_follow_torch_threads_and_the_env_var_overrides(monkeypatch) -> None:
     """``td-train --threads 1`` in each of a sweep's parallel runs must mean one kernel thread too
-    (every core per run trained two runs on 2 cores 1.55x slower)."""
+    (every core per run made two runs at once on 2 cores step 1.41x slower)."""
     from components.rasterizers import cpu_rasterizer
 
     monkeypatch.delenv(cpu_rasterizer.THREADS_ENV_VAR, raising=False)
