@@ -30,19 +30,25 @@ import sys
 import tempfile
 from pathlib import Path
 
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from components.rasterizers.cpu_rasterizer import THREADS_ENV_VAR, available_cores  # noqa: E402
+
 SETTINGS: dict[str, dict[str, str]] = {
     "default (torch picks, 2)": {},
     "torch 1, OMP 1": {"--threads": "1", "OMP_NUM_THREADS": "1"},
     "torch 2, OMP 2": {"--threads": "2", "OMP_NUM_THREADS": "2"},
     "torch 2, OMP passive": {"--threads": "2", "OMP_WAIT_POLICY": "PASSIVE"},
 }
-CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+CORES = available_cores()
 SWEEP_SETTINGS: dict[str, dict[str, str]] = {
     "torch 1, kernel 1 (follows --threads)": {"--threads": "1", "OMP_NUM_THREADS": "1"},
     f"torch 1, kernel {CORES} (every core, before)": {
         "--threads": "1",
         "OMP_NUM_THREADS": "1",
-        "TRIDEHAZE_CPU_THREADS": str(CORES),
+        THREADS_ENV_VAR: str(CORES),
     },
 }
 """Settings of ``--concurrent``: each of a sweep's runs is given ``--threads 1``."""
@@ -59,19 +65,21 @@ def run_once(setting: dict[str, str], args: argparse.Namespace, out: Path) -> fl
             cli += [key, value]
         else:
             env[key] = value
-    procs = [
-        subprocess.Popen(
-            [*cli, "--output-dir", str(out / str(i))], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            text=True, env=env,
-        )
-        for i in range(args.concurrent)
-    ]  # fmt: skip
+    # each run logs to a file: a pipe left unread while another run is waited on could fill and
+    # stall that run's training, inflating the very time being measured
+    logs = [out / f"run{i}.log" for i in range(args.concurrent)]
+    procs = []
+    for i, log in enumerate(logs):
+        with log.open("w") as fh:
+            cmd = [*cli, "--output-dir", str(out / str(i))]
+            procs.append(subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, text=True, env=env))
     per_step = []
-    for proc in procs:
-        stdout, stderr = proc.communicate()
-        m = re.search(r"train_seconds ([0-9.]+)", stdout)
+    for proc, log in zip(procs, logs, strict=True):
+        proc.wait()
+        text = log.read_text()
+        m = re.search(r"train_seconds ([0-9.]+)", text)
         if proc.returncode != 0 or not m:
-            raise RuntimeError(f"no timing in output:\n{stdout}\n{stderr}")
+            raise RuntimeError(f"no timing in output:\n{text}")
         per_step.append(float(m.group(1)) / args.steps)
     return statistics.median(per_step)
 

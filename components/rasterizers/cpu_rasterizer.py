@@ -37,11 +37,15 @@ def default_threads() -> int:
     env = os.environ.get(THREADS_ENV_VAR)
     if env:
         return max(1, int(env))
+    return max(1, min(available_cores(), torch.get_num_threads()))
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity on Linux, else the machine's count)."""
     try:
-        cores = len(os.sched_getaffinity(0))
+        return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, torch.get_num_threads()))
+        return max(1, os.cpu_count() or 1)
 
 
 def _warn_once(reason: str) -> None:
