@@ -74,6 +74,12 @@ class HazeConfig:
     min_alpha: float = 0.5
     """Rendered depth counts only where the run's accumulated opacity reaches this; elsewhere the view's
     largest valid depth is used (background)."""
+    max_depth_factor: float | None = None
+    """Clamp each view's depth at this multiple of the farthest seed point it sees (the 98th
+    percentile of their camera z; views seeing fewer than 10 points are left as they are). A depth
+    run invents the depth of a background it never saw (statue: 5-22 units against SfM points at
+    1.2-1.5), and haze made for that depth is out of any method's reach; 1.5 keeps the haze within
+    what the geometry supports. None: no clamp (the depth check still reports it)."""
     downscale: int = 1
     """Integer image downscale of the source dataset (as td-train --downscale)."""
     parser: str = "auto"
@@ -104,6 +110,9 @@ class HazeConfig:
             raise ConfigError(f"--feature-size must be a finite number > 0, got {self.feature_size}")
         if not 0.0 <= self.min_alpha <= 1.0:
             raise ConfigError(f"--min-alpha must be in [0, 1], got {self.min_alpha}")
+        f = self.max_depth_factor
+        if f is not None and not (math.isfinite(f) and f >= 1.0):
+            raise ConfigError(f"--max-depth-factor must be a finite number >= 1 (or left out), got {f}")
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
 
@@ -136,22 +145,47 @@ DEPTH_BEYOND_WARN = 0.05
 """Share of suspect pixels above which ``td-synth haze`` warns."""
 
 
-def depth_beyond_points(cams: Cameras, points: Tensor, depths: list[np.ndarray]) -> float | None:
-    """Share of all pixels whose depth [H, W] (z, dataset units) lies beyond ``DEPTH_BEYOND_FACTOR``
-    times the 98th percentile of the camera z of the seed points ``points`` [M, 3] seen by that
-    view (views seeing fewer than 10 points are skipped; None if none is left). A depth run renders
-    a background it never saw at whatever depth its Gaussians drifted to; the haze made with that
-    depth is then out of the photos' reach (docs/results/medium_recovery.md, session 24)."""
-    beyond, total = 0, 0
+def farthest_seen_points(cams: Cameras, points: Tensor, depths: list[np.ndarray]) -> list[float | None]:
+    """Per view, the 98th percentile of the camera z of the seed points ``points`` [M, 3] it sees
+    in an image of its depth map's size; None for a view seeing fewer than 10 points."""
+    out: list[float | None] = []
     viewmats, Ks = cams.viewmats().to(points), cams.Ks().to(points)  # noqa: N806
     for i, depth in enumerate(depths):
         pc, uv = project_points(points, viewmats[i], Ks[i])  # [M, 3], [M, 2]
         seen = pc[in_image(pc, uv, depth.shape[1], depth.shape[0], near=1e-9), 2].numpy()  # [S]
-        if seen.size < 10:
+        out.append(float(np.quantile(seen, 0.98)) if seen.size >= 10 else None)
+    return out
+
+
+def depth_beyond_points(cams: Cameras, points: Tensor, depths: list[np.ndarray]) -> float | None:
+    """Share of all pixels whose depth [H, W] (z, dataset units) lies beyond ``DEPTH_BEYOND_FACTOR``
+    times the farthest seed point their view sees (:func:`farthest_seen_points`; views seeing too
+    few are skipped; None if none is left). A depth run renders a background it never saw at
+    whatever depth its Gaussians drifted to; the haze made with that depth is then out of the
+    photos' reach (docs/results/medium_recovery.md, session 24)."""
+    beyond, total = 0, 0
+    for depth, far in zip(depths, farthest_seen_points(cams, points, depths), strict=True):
+        if far is None:
             continue
-        beyond += int((depth > DEPTH_BEYOND_FACTOR * np.quantile(seen, 0.98)).sum())
+        beyond += int((depth > DEPTH_BEYOND_FACTOR * far).sum())
         total += depth.size
     return beyond / total if total else None
+
+
+def clamp_to_points(
+    cams: Cameras, points: Tensor, depths: list[np.ndarray], factor: float
+) -> tuple[list[np.ndarray], float]:
+    """Each view's depth [H, W] clamped at ``factor`` times the farthest seed point it sees (views
+    seeing too few points unchanged), and the share of all pixels the clamp moved."""
+    out, moved, total = [], 0, 0
+    for depth, far in zip(depths, farthest_seen_points(cams, points, depths), strict=True):
+        total += depth.size
+        if far is None:
+            out.append(depth)
+            continue
+        moved += int((depth > factor * far).sum())
+        out.append(np.minimum(depth, factor * far))
+    return out, (moved / total if total else 0.0)
 
 
 def _check_depth(scene: SceneData, depths: list[np.ndarray], source: str) -> dict[str, float] | None:
@@ -165,11 +199,22 @@ def _check_depth(scene: SceneData, depths: list[np.ndarray], source: str) -> dic
             f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "
             "seed point their view sees: the haze there is made for geometry the photos may not "
             "support (a depth run invents the background it never saw); check the depth maps, "
-            "or treat that part of the set with care",
+            "clamp them with --max-depth-factor 1.5, or treat that part of the set with care",
             DataWarning,
             stacklevel=3,
         )
     return None if beyond is None else {"factor": DEPTH_BEYOND_FACTOR, "share": beyond}
+
+
+def _clamp_depth(scene: SceneData, depths: list[np.ndarray], factor: float) -> tuple[list[np.ndarray], float]:
+    """``--max-depth-factor``: :func:`clamp_to_points` with the dataset's seed cloud; a dataset
+    without seed points cannot be clamped and says so."""
+    if scene.points is None or not len(scene.points):
+        raise UserError(
+            "--max-depth-factor clamps the depth at the seed points the views see, and this dataset has none",
+            fix="leave --max-depth-factor out, or use a dataset with a point cloud (COLMAP points3D)",
+        )
+    return clamp_to_points(scene.cameras, scene.points.double(), depths, factor)
 
 
 @dataclass(frozen=True)
@@ -266,20 +311,11 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
             cache_dir=cfg.cache_dir,
         )
         scene = load_scene(data_cfg)
-        if cfg.depth_from_run is not None:
-            if run_depths is None:
-                raise ValueError("haze_dataset: --depth-from-run needs a run_depths renderer")
-            depths, source = run_depths(scene, cfg.depth_from_run, cfg.min_alpha), f"run {cfg.depth_from_run}"
-        elif all(p is not None for p in scene.depth_paths):
-            depths, source = dataset_depths(scene), "dataset depth maps"
-        else:
-            missing = sum(p is None for p in scene.depth_paths)
-            raise UserError(
-                f"{missing} of {len(scene)} views have no depth map",
-                where=str(root),
-                fix="pass --depth-from-run RUN/config.yml (e.g. a vanilla-gs run trained on this dataset)",
-            )
+        depths, source = _depths(cfg, scene, root, run_depths)
         t_depth = time.perf_counter() - t0
+        clamped = None
+        if cfg.max_depth_factor is not None:
+            depths, clamped = _clamp_depth(scene, depths, cfg.max_depth_factor)
         beyond = _check_depth(scene, depths, source)
         rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
         dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
@@ -293,6 +329,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
                 source=str(root),
                 depth_source=source,
                 depth_beyond_points=beyond,
+                depth_clamp=None if clamped is None else {"factor": cfg.max_depth_factor, "share": clamped},
                 median_distance=median_depth,
                 heterogeneous_field={
                     "h": cfg.heterogeneous,
@@ -304,6 +341,24 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
             )
             write_json(tmp / "synth_meta.json", meta)
     return meta
+
+
+def _depths(
+    cfg: HazeConfig, scene: SceneData, root: Path, run_depths: RunDepths | None
+) -> tuple[list[np.ndarray], str]:
+    """Each view's z-depth [H, W] in dataset units, from the run or the dataset's maps, and which."""
+    if cfg.depth_from_run is not None:
+        if run_depths is None:
+            raise ValueError("haze_dataset: --depth-from-run needs a run_depths renderer")
+        return run_depths(scene, cfg.depth_from_run, cfg.min_alpha), f"run {cfg.depth_from_run}"
+    if all(p is not None for p in scene.depth_paths):
+        return dataset_depths(scene), "dataset depth maps"
+    missing = sum(p is None for p in scene.depth_paths)
+    raise UserError(
+        f"{missing} of {len(scene)} views have no depth map",
+        where=str(root),
+        fix="pass --depth-from-run RUN/config.yml (e.g. a vanilla-gs run trained on this dataset)",
+    )
 
 
 def _target(cfg: HazeConfig) -> float | None:

@@ -16,7 +16,7 @@ from components.data.loader import load_scene
 from components.synth.haze_existing import HazeConfig, WaveField, haze_dataset
 from pipelines.evaluation.run_depth import run_depths
 from tests.synth.conftest import make_tiny
-from tridehaze_plugin.errors import UserError
+from tridehaze_plugin.errors import ConfigError, UserError
 
 
 @pytest.fixture(scope="module")
@@ -180,3 +180,53 @@ def test_a_depth_far_beyond_the_seed_points_is_flagged():
 def test_the_depth_check_is_recorded(clean_dataset, tmp_path):
     meta = haze_dataset(_cfg(clean_dataset, tmp_path / "foggy", beta=0.05))
     assert meta["depth_beyond_points"]["share"] == pytest.approx(0.0, abs=0.05)
+
+
+def test_the_depth_is_clamped_at_the_points_it_can_be_seen_with():
+    """--max-depth-factor: a depth beyond the factor times the farthest seen point is moved to it;
+    a view seeing too few points keeps its depth."""
+    import torch
+
+    from components.data.cameras import Cameras
+    from components.synth.haze_existing import clamp_to_points, farthest_seen_points
+
+    H, W = 8, 10
+    cams = Cameras(
+        torch.eye(4)[None].repeat(2, 1, 1), torch.full((2,), 10.0), torch.full((2,), 10.0),
+        torch.full((2,), W / 2), torch.full((2,), H / 2), torch.full((2,), W), torch.full((2,), H),
+    )  # fmt: skip
+    points = torch.zeros(40, 3, dtype=torch.float64)
+    points[:, 2] = torch.linspace(1.0, 2.0, 40, dtype=torch.float64)  # on the optical axis, z 1 .. 2
+    depth = np.full((H, W), 1.5)
+    depth[:, : W // 2] = 20.0  # an invented background
+    far = farthest_seen_points(cams, points, [depth, depth])
+    assert far[0] == pytest.approx(np.quantile(np.linspace(1.0, 2.0, 40), 0.98))
+    out, moved = clamp_to_points(cams, points, [depth, depth], 1.5)
+    assert moved == pytest.approx(0.5)
+    assert out[0][:, : W // 2] == pytest.approx(1.5 * far[0]) and (out[0][:, W // 2 :] == 1.5).all()
+    out, moved = clamp_to_points(cams, points[:5], [depth], 1.5)  # too few points: unchanged
+    assert moved == 0.0 and (out[0] == depth).all()
+
+
+def test_a_clamped_set_records_it_and_a_bad_factor_is_refused(clean_dataset, tmp_path):
+    meta = haze_dataset(_cfg(clean_dataset, tmp_path / "foggy", beta=0.05, max_depth_factor=1.5))
+    assert meta["depth_clamp"]["factor"] == 1.5 and 0.0 <= meta["depth_clamp"]["share"] < 0.5
+    assert meta["depth_beyond_points"]["share"] == 0.0  # nothing is left beyond 2x after a 1.5x clamp
+    for bad in (0.5, float("nan")):
+        with pytest.raises(ConfigError, match="--max-depth-factor"):
+            _cfg(clean_dataset, tmp_path / "x", beta=0.05, max_depth_factor=bad).check()
+
+
+def test_clamping_a_set_without_seed_points_is_a_clear_error(clean_dataset, tmp_path):
+    import shutil
+
+    bare = tmp_path / "bare"
+    shutil.copytree(clean_dataset, bare)
+    meta = json.loads((bare / "transforms.json").read_text())
+    meta.pop("ply_file_path")
+    (bare / "transforms.json").write_text(json.dumps(meta))
+    (bare / "points3d.ply").unlink()
+    with pytest.raises(UserError, match="has none") as err:
+        haze_dataset(_cfg(bare, tmp_path / "foggy", beta=0.05, max_depth_factor=1.5))
+    assert "leave --max-depth-factor out" in str(err.value.fix)
+    assert not (tmp_path / "foggy" / "transforms.json").exists()
