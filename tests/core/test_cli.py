@@ -128,7 +128,7 @@ def test_paper_preset_is_the_papers_schedule():
     assert paper.max_steps == 15_000 and default.max_steps == 3000
     assert scaled_step(paper.pipeline.freeze_step, paper.pipeline.freeze_fraction, paper.max_steps) == 3000
     assert (paper.pipeline.random_background, paper.pipeline.dcp_bound) == (False, "two-sided")
-    composite = replace(paper.pipeline.composite, depth_gradient=True, clean_t0=0.1)
+    composite = replace(paper.pipeline.composite, depth_gradient=True, clean_t0=0.15)
     measured = {
         "random_background": True,
         "dcp_bound": "lower-own-light",

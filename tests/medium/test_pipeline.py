@@ -103,7 +103,7 @@ def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
     # I = J*T + S with the clean render shown; below the dark channel's t0 the shown clean is
     # faded to the haze light (rendering only), so the identity holds with t0 off
     t0 = trainer.pipeline.compositor.config.clean_t0
-    assert t0 == 0.1  # tri-dehaze's default
+    assert t0 == 0.15  # tri-dehaze's default
     trainer.pipeline.compositor.config.clean_t0 = 0.0
     raw = trainer.pipeline.render(cam)
     trainer.pipeline.compositor.config.clean_t0 = t0
