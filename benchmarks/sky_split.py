@@ -36,7 +36,8 @@ SKY_FAR_SHARE = 0.75
 far plane's z is the bound times the cosine of the ray's angle (above 0.8 at a 60 degree field of
 view), and the generated scenes' surfaces end well before it (at most half of it)."""
 T0 = 0.1
-"""The dark channel's t0 (He et al.), the value ``tri-dehaze`` renders with."""
+"""The dark channel's t0 (He et al.), which ``tri-dehaze`` rendered with from session 19 to 26 (0.15
+since session 27); the sessions' sky splits were made with it."""
 REGIONS = ("all", "sky", "surface")
 
 
