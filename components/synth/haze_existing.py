@@ -35,6 +35,7 @@ from components.data.ply import write_ply_points
 from components.data.scene import DataWarning, SceneData
 from components.losses.depth_priors import in_image, project_points
 from components.synth.generate import torch_threads
+from components.synth.haze_ball import HazeBall
 from components.synth.writer import (
     check_output_dir,
     frame_entry,
@@ -80,6 +81,12 @@ class HazeConfig:
     run invents the depth of a background it never saw (statue: 5-22 units against SfM points at
     1.2-1.5), and haze made for that depth is out of any method's reach; 1.5 keeps the haze within
     what the geometry supports. None: no clamp (the depth check still reports it)."""
+    haze_ball_factor: float | None = None
+    """Confine the haze to a ball around the seed points: centred on their median, of radius this
+    multiple of their 90th-percentile distance from it. Unlike --max-depth-factor, which shortens
+    each view's march to its own clamp, this is one 3D medium every view sees alike, so a 3D method
+    can recover it wherever the background lies; rays that miss the ball stay clear. None: haze
+    everywhere along every ray."""
     downscale: int = 1
     """Integer image downscale of the source dataset (as td-train --downscale)."""
     parser: str = "auto"
@@ -113,6 +120,14 @@ class HazeConfig:
         f = self.max_depth_factor
         if f is not None and not (math.isfinite(f) and f >= 1.0):
             raise ConfigError(f"--max-depth-factor must be a finite number >= 1 (or left out), got {f}")
+        b = self.haze_ball_factor
+        if b is not None and not (math.isfinite(b) and b > 0):
+            raise ConfigError(f"--haze-ball-factor must be a finite number > 0 (or left out), got {b}")
+        if b is not None and f is not None:
+            raise ConfigError(
+                "give --haze-ball-factor or --max-depth-factor, not both: the ball already keeps the "
+                "haze off a background the points do not reach"
+            )
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
 
@@ -188,18 +203,22 @@ def clamp_to_points(
     return out, (moved / total if total else 0.0)
 
 
-def _check_depth(scene: SceneData, depths: list[np.ndarray], source: str) -> dict[str, float] | None:
+def _check_depth(
+    scene: SceneData, depths: list[np.ndarray], source: str, warn: bool = True
+) -> dict[str, float] | None:
     """:func:`depth_beyond_points` of the dataset's seed cloud as ``synth_meta.json`` records it
-    (None without a judgement), with a warning above ``DEPTH_BEYOND_WARN``."""
+    (None without a judgement), with a warning above ``DEPTH_BEYOND_WARN`` when ``warn`` (not with
+    a haze ball, which keeps the haze off such a background)."""
     if scene.points is None or not len(scene.points):
         return None
     beyond = depth_beyond_points(scene.cameras, scene.points.double(), depths)
-    if beyond is not None and beyond > DEPTH_BEYOND_WARN:
+    if warn and beyond is not None and beyond > DEPTH_BEYOND_WARN:
         warnings.warn(
             f"{beyond:.0%} of the pixels' depth ({source}) lies beyond {DEPTH_BEYOND_FACTOR:g}x the farthest "
             "seed point their view sees: the haze there is made for geometry the photos may not "
             "support (a depth run invents the background it never saw); check the depth maps, "
-            "clamp them with --max-depth-factor 1.5, or treat that part of the set with care",
+            "confine the haze with --haze-ball-factor 1.5, clamp the depth with "
+            "--max-depth-factor 1.5, or treat that part of the set with care",
             DataWarning,
             stacklevel=3,
         )
@@ -316,12 +335,9 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
         clamped = None
         if cfg.max_depth_factor is not None:
             depths, clamped = _clamp_depth(scene, depths, cfg.max_depth_factor)
-        beyond = _check_depth(scene, depths, source)
-        rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
-        dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
-        median_depth = float(np.median(np.concatenate([d.ravel() for d in dists])))
-        field = WaveField.make(cfg.heterogeneous, cfg.feature_size * median_depth, cfg.seed)
-        taus = [field.optical_depth(o, d, dist) for (o, d, _), dist in zip(rays, dists, strict=True)]
+        ball = _haze_ball(cfg, scene)
+        beyond = _check_depth(scene, depths, source, warn=ball is None)
+        taus, field, median_depth = _optical_depths(cfg, scene, depths, ball)
         beta = _solve_beta(cfg, taus)
         with staged_output(out, cfg.overwrite, "td-synth") as tmp:
             meta = _write(cfg, scene, tmp, depths, taus, beta)
@@ -330,6 +346,7 @@ def haze_dataset(cfg: HazeConfig, run_depths: RunDepths | None = None) -> dict[s
                 depth_source=source,
                 depth_beyond_points=beyond,
                 depth_clamp=None if clamped is None else {"factor": cfg.max_depth_factor, "share": clamped},
+                haze_ball=None if ball is None else _ball_meta(cfg, scene, ball, taus),
                 median_distance=median_depth,
                 heterogeneous_field={
                     "h": cfg.heterogeneous,
@@ -361,6 +378,52 @@ def _depths(
     )
 
 
+def _haze_ball(cfg: HazeConfig, scene: SceneData) -> HazeBall | None:
+    """``--haze-ball-factor``: the ball around the dataset's seed cloud; a dataset without seed
+    points has nothing to centre it on and says so."""
+    if cfg.haze_ball_factor is None:
+        return None
+    if scene.points is None or not len(scene.points):
+        raise UserError(
+            "--haze-ball-factor centres the haze on the dataset's seed points, and this dataset has none",
+            fix="leave --haze-ball-factor out, or use a dataset with a point cloud (COLMAP points3D)",
+        )
+    return HazeBall.around(scene.points.double().numpy(), cfg.haze_ball_factor)
+
+
+def _optical_depths(
+    cfg: HazeConfig, scene: SceneData, depths: list[np.ndarray], ball: HazeBall | None
+) -> tuple[list[np.ndarray], WaveField, float]:
+    """Each view's optical depth per unit beta [H, W] (the field integrated along the ray to the
+    surface, within the ball where there is one), the field, and the median ray distance."""
+    rays = [view_rays(scene.cameras, i) for i in range(len(scene))]
+    dists = [z * norm for z, (_, _, norm) in zip(depths, rays, strict=True)]  # z-depth -> ray distance
+    median_depth = float(np.median(np.concatenate([d.ravel() for d in dists])))
+    field = WaveField.make(cfg.heterogeneous, cfg.feature_size * median_depth, cfg.seed)
+    taus = []
+    for (o, d, _), dist in zip(rays, dists, strict=True):
+        if ball is None:
+            taus.append(field.optical_depth(o, d, dist))
+            continue
+        enter, length = ball.chord(o, d, dist)  # [H, W] each
+        taus.append(field.optical_depth(o + enter[..., None] * d, d, length))
+    return taus, field, median_depth
+
+
+def _ball_meta(cfg: HazeConfig, scene: SceneData, ball: HazeBall, taus: list[np.ndarray]) -> dict[str, Any]:
+    """What ``synth_meta.json`` records of the ball: its size, the cameras inside it and the share
+    of pixels whose ray never meets the haze."""
+    centres = scene.cameras.camtoworlds[:, :3, 3].double().numpy()  # [N, 3]
+    clear = sum(int((t <= 0.0).sum()) for t in taus) / sum(t.size for t in taus)
+    return {
+        "factor": cfg.haze_ball_factor,
+        "centre": ball.centre.tolist(),
+        "radius": ball.radius,
+        "cameras_inside": int(ball.contains(centres).sum()),
+        "clear_share": clear,
+    }
+
+
 def _target(cfg: HazeConfig) -> float | None:
     """The median transmittance to hit (None when beta is given)."""
     if cfg.beta is not None:
@@ -374,7 +437,11 @@ def _solve_beta(cfg: HazeConfig, taus: list[np.ndarray]) -> float:
         return float(cfg.beta)  # type: ignore[arg-type]
     med = float(np.median(np.concatenate([t.ravel() for t in taus])))
     if med <= 0:
-        raise UserError("the depths are all zero; cannot choose beta from a transmittance target")
+        raise UserError(
+            "at least half of the pixels see no haze (depths of zero, or rays that miss the haze "
+            "ball), so no beta gives that median transmittance",
+            fix="give --beta instead, or a larger --haze-ball-factor",
+        )
     return -math.log(target) / med
 
 

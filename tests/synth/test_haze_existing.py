@@ -230,3 +230,70 @@ def test_clamping_a_set_without_seed_points_is_a_clear_error(clean_dataset, tmp_
         haze_dataset(_cfg(bare, tmp_path / "foggy", beta=0.05, max_depth_factor=1.5))
     assert "leave --max-depth-factor out" in str(err.value.fix)
     assert not (tmp_path / "foggy" / "transforms.json").exists()
+
+
+def test_the_haze_ball_chord_is_the_ray_inside_it():
+    """Against a dense sampling of the ray: the entry point and the length inside the ball, for
+    cameras inside and outside it, rays that miss it and surfaces in front of, inside and behind it."""
+    from components.synth.haze_ball import HazeBall
+
+    ball = HazeBall(np.array([0.5, -0.2, 3.0]), 1.3)
+    rng = np.random.default_rng(1)
+    s = (np.arange(200000) + 0.5) / 200000
+    for o in (np.array([0.0, 0.0, 0.0]), np.array([0.4, 0.1, 2.5])):  # outside, inside
+        d = rng.normal(size=(40, 3)) + np.array([0.5, -0.2, 3.0]) - o
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        dist = rng.uniform(0.2, 8.0, 40)
+        enter, length = ball.chord(o, d, dist)
+        inside = ball.contains(o + (dist[:, None, None] * s[None, :, None]) * d[:, None, :])  # [40, S]
+        np.testing.assert_allclose(length, inside.mean(axis=1) * dist, atol=1e-4)
+        first = np.where(inside.any(axis=1), inside.argmax(axis=1) / len(s), 1.0) * dist
+        np.testing.assert_allclose(enter[length > 1e-3], first[length > 1e-3], atol=1e-4)
+        assert (length >= 0).all() and (enter <= dist).all()
+    enter, length = ball.chord(np.zeros(3), np.array([[0.0, 1.0, 0.0]]), np.array([10.0]))  # misses
+    assert length[0] == 0.0
+
+
+def test_the_haze_ball_is_one_medium_for_every_view(clean_dataset, tmp_path):
+    """--haze-ball-factor: the written T is exp(-beta * the field integrated over the ray's part
+    inside the ball), each view's from its own camera (one 3D medium), and the set records it."""
+    from components.synth.haze_ball import HazeBall
+
+    out = tmp_path / "foggy"
+    cfg = _cfg(clean_dataset, out, median_transmittance=0.6, haze_ball_factor=0.3, heterogeneous=0.5)
+    meta = haze_dataset(cfg)
+    ball_meta = meta["haze_ball"]
+    pts = np.asarray(load_scene(DataConfig(data=clean_dataset, center_poses=False, scale_poses=False)).points)
+    ball = HazeBall.around(pts, 0.3)
+    np.testing.assert_allclose(ball_meta["centre"], ball.centre)
+    assert ball_meta["factor"] == 0.3 and ball_meta["radius"] == pytest.approx(ball.radius)
+    assert ball_meta["cameras_inside"] == 0  # every ray enters the haze on its way, not at the camera
+    Ts = [np.load(out / fr["gt_transmittance_file_path"]) for fr in _frames(out)]
+    assert ball_meta["clear_share"] == pytest.approx(np.mean(np.concatenate([t.ravel() for t in Ts]) == 1.0))
+    hf = meta["heterogeneous_field"]
+    field = WaveField(hf["h"], np.asarray(hf["waves"]), np.asarray(hf["phases"]))
+    s = (np.arange(4000) + 0.5) / 4000
+    for fr in _frames(out)[:3]:
+        depth = np.load(out / fr["gt_depth_file_path"])
+        T = np.load(out / fr["gt_transmittance_file_path"])
+        c2w = np.asarray(fr["transform_matrix"], np.float64)
+        H, W = depth.shape
+        ys, xs = np.array([H // 4, H // 2, 3 * H // 4]), np.array([W // 3, W // 2, 2 * W // 3])
+        cam = np.stack(
+            [(xs + 0.5 - fr["cx"]) / fr["fl_x"], -(ys + 0.5 - fr["cy"]) / fr["fl_y"], -np.ones(3)], -1
+        )
+        dist = _ray_distance(fr, depth)[ys, xs]
+        d = cam / np.linalg.norm(cam, axis=1, keepdims=True) @ c2w[:3, :3].T
+        pts_ray = c2w[:3, 3] + (dist[:, None, None] * s[None, :, None]) * d[:, None, :]  # [3, S, 3]
+        tau = (field(pts_ray) * ball.contains(pts_ray)).mean(axis=1) * dist
+        np.testing.assert_allclose(T[ys, xs], np.exp(-meta["beta"] * tau), atol=2e-3)
+
+
+def test_a_bad_haze_ball_is_refused(clean_dataset, tmp_path):
+    for kw in ({"haze_ball_factor": 0.0}, {"haze_ball_factor": float("inf")},
+               {"haze_ball_factor": 1.5, "max_depth_factor": 1.5}):  # fmt: skip
+        with pytest.raises(ConfigError, match="--haze-ball-factor"):
+            _cfg(clean_dataset, tmp_path / "x", beta=0.05, **kw).check()
+    with pytest.raises(UserError, match="half of the pixels see no haze"):
+        haze_dataset(_cfg(clean_dataset, tmp_path / "tiny", median_transmittance=0.5, haze_ball_factor=1e-4))
+    assert not (tmp_path / "tiny" / "transforms.json").exists()
