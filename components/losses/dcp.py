@@ -135,6 +135,7 @@ def dcp_transmittance_loss(
     mask: Tensor | None = None,
     lower_bound: bool = False,
     upper_weight: float = 0.0,
+    weight: Tensor | None = None,
 ) -> Tensor:
     """Mean squared error between the rendered transmittance and the DCP estimate, both [H, W].
 
@@ -145,16 +146,21 @@ def dcp_transmittance_loss(
     squared error (most clean patches do have a dark pixel, so the bound is usually close; 0: a
     pure bound, 1: the two-sided loss).
     The mask is a weight (no boolean indexing, so no host sync); an empty mask gives 0.
+    ``weight`` [H, W]: a per-pixel factor on the penalty; the mean is still over the mask's pixels,
+    so a weight below 1 takes force off a pixel rather than moving it to the others.
     """
     diff = T_dcp.to(T_hat) - T_hat  # [H, W]
     if lower_bound:
         diff = diff.clamp_min(0.0).square() + upper_weight * diff.clamp_max(0.0).square()
     else:
         diff = diff.square()
-    if mask is None:
+    if mask is None and weight is None:
         return diff.mean()
-    w = mask.to(diff.dtype)
-    return (diff * w).sum() / w.sum().clamp_min(1.0)
+    w = torch.ones_like(diff) if mask is None else mask.to(diff.dtype)
+    count = w.sum().clamp_min(1.0)
+    if weight is not None:
+        w = w * weight.to(diff)
+    return (diff * w).sum() / count
 
 
 def dark_channel_bound(

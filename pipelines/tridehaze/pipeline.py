@@ -114,6 +114,13 @@ class GaussianPipelineConfig(PipelineConfig):
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
     channel is close, drifts to too little haze under a pure bound."""
+    dcp_weighting: Literal["uniform", "transmittance"] = "uniform"
+    """Per-pixel weight of the dark-channel term: ``uniform``, or ``transmittance``: the pixel's
+    rendered T (detached). The bound speaks about the clean colour through T: where the haze is
+    nearly opaque (sky, dense haze) it says little about how the haze splits into T and light,
+    and its omega margin, (1 - omega)(1 - T) above the truth on a black clean patch, is largest
+    against T. There the medium and the light follow the photos alone (a strong bound on the
+    sky thins the whole field and brightens the light: docs/results/medium_recovery.md, session 28)."""
     lambda_light: Annotated[float, NonNegative] = 0.0
     """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
     the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
@@ -383,8 +390,9 @@ class GaussianPipeline(Pipeline):
             if cfg.dcp_bound == "lower-own-light":
                 t_prior, mask = self._own_light_bound(target, med)
             lower = cfg.dcp_bound != "two-sided"
+            weight = T.detach() if cfg.dcp_weighting == "transmittance" else None
             dcp = dcp_transmittance_loss(
-                T, t_prior, mask, lower_bound=lower, upper_weight=cfg.dcp_upper_weight
+                T, t_prior, mask, lower_bound=lower, upper_weight=cfg.dcp_upper_weight, weight=weight
             )
             loss = loss + cfg.lambda_dcp * dcp
             metrics["dcp"] = dcp.detach()

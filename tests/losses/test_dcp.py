@@ -214,3 +214,18 @@ def test_min_filter_equals_max_pool(shape: tuple[int, int], patch: int) -> None:
         x.view(-1)[1] = 0.5
     ref = -F.max_pool2d(-x[None, None], patch, stride=1, padding=patch // 2)[0, 0]
     assert torch.equal(min_filter(x, patch), ref)
+
+
+def test_transmittance_loss_weight_scales_each_pixel_and_keeps_the_mask_count(device):
+    """A per-pixel weight multiplies a pixel's penalty; the mean stays over the mask's pixels."""
+    t = torch.tensor([[0.1, 0.4], [0.6, 0.9]], device=device)
+    t_dcp = torch.full((2, 2), 1.0, device=device)
+    w = torch.tensor([[0.5, 1.0], [0.0, 2.0]], device=device)
+    sq = (1.0 - t) ** 2
+    assert dcp_transmittance_loss(t, t_dcp, weight=w).item() == pytest.approx((sq * w).sum().item() / 4)
+    mask = torch.tensor([[True, True], [False, False]], device=device)
+    expected = (sq * w)[0].sum().item() / 2  # two masked pixels, their weights 0.5 and 1
+    assert dcp_transmittance_loss(t, t_dcp, mask, weight=w).item() == pytest.approx(expected)
+    assert dcp_transmittance_loss(t, t_dcp, mask, weight=torch.ones_like(w)).item() == pytest.approx(
+        dcp_transmittance_loss(t, t_dcp, mask).item()
+    )

@@ -392,6 +392,24 @@ def test_dark_channel_bound_with_full_upper_weight_is_the_two_sided_loss(scenes,
     assert d_bound < d_two  # the pure bound drops the side above the estimate
 
 
+def test_dark_channel_weighting_by_transmittance_reaches_the_loss(scenes, tmp_path, device):
+    """``--pipeline.dcp-weighting transmittance``: each pixel's penalty times its rendered T, so
+    with the haze dense (every T < 1) the term is smaller than the uniform one but not zero."""
+    args = ("--pipeline.dcp-bound", "lower", "--pipeline.lambda-dcp", "1.0")
+    uniform = _trainer(scenes["sky"], tmp_path / "u", device, *args)
+    weighted = _trainer(
+        scenes["sky"], tmp_path / "w", device, *args, "--pipeline.dcp-weighting", "transmittance"
+    )
+    for t in (uniform, weighted):
+        t.pipeline.medium.initialize(5.0, torch.full((3,), 0.7))  # dense: T far below the estimate
+    d_u = float(uniform.pipeline.train_loss(0).metrics["dcp"])
+    res = weighted.pipeline.train_loss(0)
+    d_w, mean_t = float(res.metrics["dcp"]), float(res.metrics["mean_T"])
+    assert d_u > 0.0 and 0.0 < d_w < d_u
+    assert mean_t < 0.9
+    _check_one_step(weighted)
+
+
 def test_light_anchor_pulls_the_medium_light_to_the_airlight_in_stage_one_only(scenes, tmp_path, device):
     """``--pipeline.lambda-light``: off, no anchor term; on, a term that is the squared distance of the
     scattered light to the view's dark-channel airlight, whose gradient step moves the light towards
