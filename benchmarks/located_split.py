@@ -88,6 +88,7 @@ def diagnose(config: Path) -> dict:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
     return {
         "run": str(config.parent),
+        "method": config.parent.name,
         "scene": Path(str(run.config.dataset.data)).name,
         "seed": run.config.seed,
         "background_share": n_bg / sums["model"]["all"][1],
@@ -103,14 +104,14 @@ def _f(v: float | None, digits: int = 2) -> str:
 
 def markdown(rows: list[dict]) -> str:
     lines = [
-        "| run | scene | seed | background share | PSNR all / located / background | single-image "
+        "| arm | method | scene | seed | background share | PSNR all / located / background | single-image "
         "dark channel, the same | background T model / true |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         cells = [" / ".join(_f(r["psnr"][src][k]) for k in REGIONS) for src in ("model", "dcp_2d")]
         lines.append(
-            f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {100 * r['background_share']:.0f} % | "
+            f"| {arm_of(r['run'])} | {r['method']} | {r['scene']} | {r['seed']} | {100 * r['background_share']:.0f} % | "
             f"{cells[0]} | {cells[1]} | {_f(r['background_t_model'], 3)} / {_f(r['background_t_true'], 3)} |"
         )
     return "\n".join(lines) + "\n"
@@ -129,7 +130,7 @@ def plot(rows: list[dict], path: Path) -> None:
     for i, (src, k) in enumerate(series):
         xs = [x + (i - (len(series) - 1) / 2) * width for x in range(len(rows))]
         ax.bar(xs, [r["psnr"][src][k] or 0.0 for r in rows], width, label=f"{k}, {src}", color=f"C{i}")
-    labels = [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows]
+    labels = [f"{arm_of(r['run'])} {r['method']}\n{r['scene']} s{r['seed']}" for r in rows]
     ax.set_xticks(range(len(rows)), labels, fontsize=6, rotation=60, ha="right")
     ax.set_ylabel("restoration PSNR (dB)")
     ax.legend(fontsize=7)

@@ -64,7 +64,7 @@ def test_on_a_tiny_run(tmp_path):
     )  # fmt: skip
     config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
     row = run_diagnosis("located_split.py", [config], tmp_path / "split")
-    assert 0.0 <= row["background_share"] <= 1.0
+    assert 0.0 <= row["background_share"] <= 1.0 and row["method"] == config.parent.name
     for src in ("model", "dcp_2d"):
         assert 0.0 < row["psnr"][src]["all"] < 60.0
         assert row["psnr"][src]["located"] is not None
