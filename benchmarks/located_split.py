@@ -133,7 +133,7 @@ def plot(rows: list[dict], path: Path) -> None:
     labels = [f"{arm_of(r['run'])} {r['method']}\n{r['scene']} s{r['seed']}" for r in rows]
     ax.set_xticks(range(len(rows)), labels, fontsize=6, rotation=60, ha="right")
     ax.set_ylabel("restoration PSNR (dB)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, ncol=4, loc="lower center", bbox_to_anchor=(0.5, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
