@@ -43,3 +43,17 @@ def tri_run(eval_scene, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def plain_run(eval_scene, tmp_path_factory) -> Path:
     return train_tiny(eval_scene, tmp_path_factory.mktemp("eval_plain"), method="vanilla-gs", steps=4)
+
+
+@pytest.fixture(scope="session")
+def courtyard_run(tmp_path_factory) -> Path:
+    """A generated hazy courtyard with true maps and seed points, 4 steps on the CPU: the run the
+    diagnoses of ``benchmarks/`` are tried on."""
+    from tests.tiny_scenes import tiny_hazy_scene
+
+    root = tmp_path_factory.mktemp("courtyard")
+    scene = tiny_hazy_scene(
+        root / "scene", layout="courtyard", seed=3, num_views=6, width=40, height=30, samples=16,
+        num_points=300, test_every=3,
+    )  # fmt: skip
+    return train_tiny(scene, root / "runs", "--device", "cpu", steps=4)

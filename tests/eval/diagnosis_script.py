@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -24,3 +26,12 @@ def run_diagnosis(script: str, configs: list[Path], out: Path) -> dict:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return next(r for r in json.loads(out.with_suffix(".json").read_text()) if "scene" in r)
+
+
+def load_benchmark(monkeypatch, name: str) -> ModuleType:
+    """Import ``benchmarks/<name>.py`` (its sibling modules on the path for this test only)."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import torch
 
-from tests.eval.diagnosis_script import REPO, run_diagnosis
-from tests.export.tiny_run import train_tiny
-from tests.tiny_scenes import tiny_hazy_scene
+from tests.eval.diagnosis_script import load_benchmark, run_diagnosis
 
 
 def _module(monkeypatch):
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # its sibling modules
-    spec = importlib.util.spec_from_file_location(
-        "dcp_bound_split", REPO / "benchmarks" / "dcp_bound_split.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark(monkeypatch, "dcp_bound_split")
 
 
 def test_split_of_a_known_view(monkeypatch):
@@ -46,12 +37,8 @@ def test_split_of_a_known_view(monkeypatch):
     assert torch.allclose(ratio, torch.full_like(ratio, 0.5 / 0.6))
 
 
-def test_on_a_tiny_run(tmp_path):
-    scene = tiny_hazy_scene(
-        tmp_path / "scene", layout="courtyard", seed=3, num_views=6, width=40, height=30, samples=16,
-        num_points=300, test_every=3,
-    )  # fmt: skip
-    config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
+def test_on_a_tiny_run(courtyard_run, tmp_path):
+    config = courtyard_run
     out = tmp_path / "split"
     row = run_diagnosis("dcp_bound_split.py", [config], out)
     assert 0.0 < row["tight_share"] < 1.0

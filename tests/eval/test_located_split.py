@@ -2,23 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import torch
 
 from components.data.cameras import Cameras
-from tests.eval.diagnosis_script import REPO, run_diagnosis
-from tests.export.tiny_run import train_tiny
-from tests.tiny_scenes import tiny_hazy_scene
+from tests.eval.diagnosis_script import load_benchmark, run_diagnosis
 
 
 def _module(monkeypatch):
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # its sibling modules
-    spec = importlib.util.spec_from_file_location("located_split", REPO / "benchmarks" / "located_split.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark(monkeypatch, "located_split")
 
 
 def _camera(H: int, W: int) -> Cameras:
@@ -57,12 +49,8 @@ def test_masked_sums_and_psnr(monkeypatch):
     assert np.isclose(mod.psnr_of(sums["a"]), 20.0)
 
 
-def test_on_a_tiny_run(tmp_path):
-    scene = tiny_hazy_scene(
-        tmp_path / "scene", layout="courtyard", seed=3, num_views=6, width=40, height=30, samples=16,
-        num_points=300, test_every=3,
-    )  # fmt: skip
-    config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
+def test_on_a_tiny_run(courtyard_run, tmp_path):
+    config = courtyard_run
     row = run_diagnosis("located_split.py", [config], tmp_path / "split")
     assert 0.0 <= row["background_share"] <= 1.0 and row["method"] == config.parent.name
     for src in ("model", "dcp_2d"):

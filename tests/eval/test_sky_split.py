@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 
 import numpy as np
 import torch
 
-from tests.eval.diagnosis_script import REPO, run_diagnosis
+from tests.eval.diagnosis_script import load_benchmark, run_diagnosis
 from tests.export.tiny_run import train_tiny
 from tests.tiny_scenes import tiny_hazy_scene
 
 
 def _module(monkeypatch):
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # its sibling modules
-    spec = importlib.util.spec_from_file_location("sky_split", REPO / "benchmarks" / "sky_split.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark(monkeypatch, "sky_split")
 
 
 def test_regions_add_up_and_psnr_of_known_errors(monkeypatch):
