@@ -1,8 +1,8 @@
 """A ball that confines synthetic haze to the part of a real capture its seed points cover.
 
 A real photo set hazed with a depth run's maps puts haze in front of a background the photos
-never located (statue: a wall at 5-22 units behind SfM points at 1.2-1.5), and the haze that
-depth makes is opaque. Clamping each view's depth (``--max-depth-factor``) keeps the haze
+never located (statue: a wall at 5-22 units behind SfM points at 1.2-1.5), so the haze there
+depends on a depth no method can check. Clamping each view's depth (``--max-depth-factor``) keeps the haze
 recoverable, but then every view marches to its own clamp: the haze is no longer one 3D field,
 and a 3D method that locates the background where the photos' parallax puts it cannot agree with
 it. A haze field that is zero outside a ball around the seed points is one 3D medium, seen the
