@@ -34,6 +34,21 @@ SCENE_SIZE = {"num_views": 24, "width": 96, "height": 72}
 """Small enough for a CPU sweep (a tri-dehaze run of 3000 steps: 4-12 min on one core)."""
 METHODS: tuple[str, ...] = ("vanilla-gs", "dcp-gs", "tri-dehaze")
 """Methods trained on every scene (the first two are the baselines the targets compare with)."""
+BASELINES: tuple[str, ...] = METHODS[:2]
+"""The methods the table compares the reported one with."""
+
+
+def method_order_warning(methods: list[str]) -> str | None:
+    """A warning when ``--methods`` puts a baseline last while a method under test is also listed:
+    the table reports the last one, so it would report the baseline against the method under test."""
+    last, others = methods[-1], [m for m in methods[:-1] if m not in BASELINES]
+    if last not in BASELINES or not others:
+        return None
+    order = [m for m in methods if m in BASELINES] + [m for m in methods if m not in BASELINES]
+    return (
+        f"--methods: the table reports the last method, {last}, a baseline, against the others; "
+        f"to report {others[-1]}, put it last: --methods {' '.join(order)} (finished runs are reused)"
+    )
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,14 @@ import sys
 
 import pytest
 
-from pipelines.experiments.restoration_bench import SCENES, Targets, check_targets, markdown, scene_rows
+from pipelines.experiments.restoration_bench import (
+    SCENES,
+    Targets,
+    check_targets,
+    markdown,
+    method_order_warning,
+    scene_rows,
+)
 
 
 def _r(scene: str, method: str, psnr: float, **extra) -> dict:
@@ -92,3 +99,15 @@ def test_td_bench_restoration_end_to_end(tmp_path):
     assert bad.returncode == 2 and "moon-fog" in bad.stderr and "Traceback" not in bad.stderr
     assert "no dataset" in bad.stderr
     assert not (tmp_path / "set2").exists()
+
+
+def test_a_baseline_reported_against_the_method_under_test_is_warned_about():
+    """The table reports the last of --methods: a baseline there while tri-dehaze is listed too is
+    almost surely a mistake, and the warning gives the order that reports tri-dehaze."""
+    msg = method_order_warning(["tri-dehaze", "vanilla-gs", "dcp-gs"])
+    assert msg is not None and "dcp-gs, a baseline" in msg
+    assert "--methods vanilla-gs dcp-gs tri-dehaze" in msg
+    assert method_order_warning(["vanilla-gs", "dcp-gs", "tri-dehaze"]) is None
+    assert method_order_warning(["dcp-gs"]) is None  # a baseline alone is benchmarked on purpose
+    assert method_order_warning(["vanilla-gs", "dcp-gs"]) is None
+    assert "tri-dehaze-fast" in method_order_warning(["tri-dehaze-fast", "vanilla-gs"])

@@ -329,6 +329,9 @@ def restoration(args: RestorationArgs) -> None:
             f"(transforms.json) under {args.set_dir}",
             fix=f"choose from {', '.join(rb.scene_names())}, or put the dataset at {args.set_dir}/NAME",
         )
+    warning = rb.method_order_warning(args.methods)
+    if warning is not None:
+        print(f"warning: {warning}", file=sys.stderr, flush=True)
     paths = rb.build(args.set_dir, args.scenes)
     names = [p.name for p in paths]
     results: dict[int, list[dict[str, Any]]] = {}
