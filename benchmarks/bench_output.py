@@ -44,3 +44,32 @@ def diagnose_runs_main(
     if order is not None:
         rows.sort(key=order)
     publish(args.output, rows, title, how, table(rows), plot)
+
+
+def grouped_bars(
+    path: Path,
+    labels: list[str],
+    series: list[tuple[str, list[float]]],
+    ylabel: str,
+    legend_above: bool = False,
+) -> None:
+    """One group of bars per label (one bar per series, values in label order), written to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(labels)), 4))
+    width = 0.8 / len(series)
+    for i, (name, values) in enumerate(series):
+        xs = [x + (i - (len(series) - 1) / 2) * width for x in range(len(labels))]
+        ax.bar(xs, values, width, label=name, color=f"C{i}")
+    ax.set_xticks(range(len(labels)), labels, fontsize=6, rotation=60, ha="right")
+    ax.set_ylabel(ylabel)
+    if legend_above:
+        ax.legend(fontsize=7, ncol=len(series), loc="lower center", bbox_to_anchor=(0.5, 1.0))
+    else:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

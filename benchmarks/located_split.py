@@ -27,14 +27,15 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main  # noqa: E402
+from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
-from sky_split import arm_of, psnr_of  # noqa: E402
+from sky_split import arm_of, masked_sums, psnr_of  # noqa: E402
 
 from components.data.cameras import Cameras  # noqa: E402
 from components.losses.dcp import dehaze, estimate_dcp  # noqa: E402
 from components.synth.haze_existing import DEPTH_BEYOND_FACTOR, farthest_seen_points  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
+from pipelines.experiments.tables import fmt_number  # noqa: E402
 
 REGIONS = ("all", "located", "background")
 
@@ -47,13 +48,6 @@ def background_mask(camera: Cameras, points: Tensor, true_z: Tensor) -> Tensor:
     if far is None:
         return torch.zeros_like(true_z, dtype=torch.bool)
     return true_z > DEPTH_BEYOND_FACTOR * far
-
-
-def masked_sums(image: Tensor, reference: Tensor, masks: dict[str, Tensor]) -> dict[str, tuple[float, int]]:
-    """Per mask [H, W]: the sum of squared errors of ``image`` against ``reference`` ([H, W, 3])
-    over its pixels and channels, and its pixel count."""
-    se = ((image - reference) ** 2).sum(-1)  # [H, W]
-    return {k: (float(se[m].sum()), int(m.sum())) for k, m in masks.items()}
 
 
 def _accumulate(total: dict[str, list[float]], sums: dict[str, tuple[float, int]]) -> None:
@@ -98,10 +92,6 @@ def diagnose(config: Path) -> dict:
     }
 
 
-def _f(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| arm | method | scene | seed | background share | PSNR all / located / background | single-image "
@@ -109,34 +99,23 @@ def markdown(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        cells = [" / ".join(_f(r["psnr"][src][k]) for k in REGIONS) for src in ("model", "dcp_2d")]
+        cells = [" / ".join(fmt_number(r["psnr"][src][k]) for k in REGIONS) for src in ("model", "dcp_2d")]
         lines.append(
             f"| {arm_of(r['run'])} | {r['method']} | {r['scene']} | {r['seed']} | {100 * r['background_share']:.0f} % | "
-            f"{cells[0]} | {cells[1]} | {_f(r['background_t_model'], 3)} / {_f(r['background_t_true'], 3)} |"
+            f"{cells[0]} | {cells[1]} | {fmt_number(r['background_t_model'], 3)} / {fmt_number(r['background_t_true'], 3)} |"
         )
     return "\n".join(lines) + "\n"
 
 
 def plot(rows: list[dict], path: Path) -> None:
     """Located and background PSNR per run, the run's clean render beside the single-image dark channel."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows)), 4))
-    series = [(src, k) for k in ("located", "background") for src in ("model", "dcp_2d")]
-    width = 0.8 / len(series)
-    for i, (src, k) in enumerate(series):
-        xs = [x + (i - (len(series) - 1) / 2) * width for x in range(len(rows))]
-        ax.bar(xs, [r["psnr"][src][k] or 0.0 for r in rows], width, label=f"{k}, {src}", color=f"C{i}")
+    series = [
+        (f"{k}, {src}", [r["psnr"][src][k] or 0.0 for r in rows])
+        for k in ("located", "background")
+        for src in ("model", "dcp_2d")
+    ]
     labels = [f"{arm_of(r['run'])} {r['method']}\n{r['scene']} s{r['seed']}" for r in rows]
-    ax.set_xticks(range(len(rows)), labels, fontsize=6, rotation=60, ha="right")
-    ax.set_ylabel("restoration PSNR (dB)")
-    ax.legend(fontsize=7, ncol=4, loc="lower center", bbox_to_anchor=(0.5, 1.0))
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    grouped_bars(path, labels, series, "restoration PSNR (dB)", legend_above=True)
 
 
 def main() -> None:

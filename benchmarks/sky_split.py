@@ -26,10 +26,11 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main  # noqa: E402
+from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 
 from pipelines.engine.run_loader import load_run  # noqa: E402
+from pipelines.experiments.tables import fmt_number  # noqa: E402
 
 SKY_FAR_SHARE = 0.75
 """A pixel is sky where its true z-depth is at least this share of the generator's far bound: the
@@ -41,12 +42,17 @@ since session 27); the sessions' sky splits were made with it."""
 REGIONS = ("all", "sky", "surface")
 
 
-def region_sums(clean: Tensor, reference: Tensor, sky: Tensor) -> dict[str, tuple[float, int]]:
-    """Per region: the sum of squared errors over pixels and channels, and the pixel count.
-    clean, reference: [H, W, 3]; sky: [H, W] bool."""
-    se = ((clean - reference) ** 2).sum(-1)  # [H, W]
-    masks = {"all": torch.ones_like(sky), "sky": sky, "surface": ~sky}
+def masked_sums(image: Tensor, reference: Tensor, masks: dict[str, Tensor]) -> dict[str, tuple[float, int]]:
+    """Per mask [H, W]: the sum of squared errors of ``image`` against ``reference`` ([H, W, 3])
+    over its pixels and channels, and its pixel count."""
+    se = ((image - reference) ** 2).sum(-1)  # [H, W]
     return {k: (float(se[m].sum()), int(m.sum())) for k, m in masks.items()}
+
+
+def region_sums(clean: Tensor, reference: Tensor, sky: Tensor) -> dict[str, tuple[float, int]]:
+    """:func:`masked_sums` over the whole picture, the sky and the surfaces. clean, reference:
+    [H, W, 3]; sky: [H, W] bool."""
+    return masked_sums(clean, reference, {"all": torch.ones_like(sky), "sky": sky, "surface": ~sky})
 
 
 def psnr_of(sums: tuple[float, int]) -> float | None:
@@ -107,10 +113,6 @@ def arm_of(run: str) -> str:
     return Path(run).name
 
 
-def _f(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | sky share | PSNR all / sky / surface, t0 off | the same, t0 "
@@ -118,34 +120,23 @@ def markdown(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        cells = [" / ".join(_f(r["psnr"][key][k]) for k in REGIONS) for key in ("t0=0", f"t0={T0:g}")]
+        cells = [" / ".join(fmt_number(r["psnr"][key][k]) for k in REGIONS) for key in ("t0=0", f"t0={T0:g}")]
         lines.append(
             f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {100 * r['sky_share']:.0f} % | "
-            f"{cells[0]} | {cells[1]} | {_f(r['sky_t_model'], 3)} / {_f(r['sky_t_true'], 3)} |"
+            f"{cells[0]} | {cells[1]} | {fmt_number(r['sky_t_model'], 3)} / {fmt_number(r['sky_t_true'], 3)} |"
         )
     return "\n".join(lines) + "\n"
 
 
 def plot(rows: list[dict], path: Path) -> None:
     """Sky and surface PSNR per run, without and with t0."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(rows)), 4))
-    series = [(k, t0) for k in ("sky", "surface") for t0 in ("t0=0", f"t0={T0:g}")]
-    width = 0.8 / len(series)
-    for i, (k, t0) in enumerate(series):
-        xs = [x + (i - (len(series) - 1) / 2) * width for x in range(len(rows))]
-        ax.bar(xs, [r["psnr"][t0][k] or 0.0 for r in rows], width, label=f"{k}, {t0}", color=f"C{i}")
+    series = [
+        (f"{k}, {t0}", [r["psnr"][t0][k] or 0.0 for r in rows])
+        for k in ("sky", "surface")
+        for t0 in ("t0=0", f"t0={T0:g}")
+    ]
     labels = [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows]
-    ax.set_xticks(range(len(rows)), labels, fontsize=6, rotation=60, ha="right")
-    ax.set_ylabel("restoration PSNR (dB)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    grouped_bars(path, labels, series, "restoration PSNR (dB)")
 
 
 def main() -> None:
