@@ -111,10 +111,17 @@ class MediumConfig(ComponentConfig):
     """Feature channels per plane cell (the tri-plane feature is 3 * channels wide)."""
     hidden: Annotated[int, Range(1, 4096)] = 64
     """Width of the two-layer heads (and of the coordinate MLPs)."""
-    light: Literal["sh", "rgb", "mlp"] = "sh"
+    light: Literal["sh", "rgb", "mlp", "axial"] = "sh"
     """Medium light: direction-dependent spherical harmonics, a direction-free RGB colour (the
-    paper's "tri-plane RGB" ablation), or ``mlp``: the light head also reads a Fourier encoding of
-    the direction, for a sharper dependence than SH (a forward-scattering glow towards the sun)."""
+    paper's "tri-plane RGB" ablation), ``mlp``: the light head also reads a Fourier encoding of
+    the direction, for a sharper dependence than SH (a forward-scattering glow towards the sun),
+    or ``axial``: the same head reads only the cosine between the direction and one learnt axis.
+    Single scattering of one source (the sun, the light from above under water) depends on the
+    angle to it alone; a light free in every direction can instead take up a colour the photos
+    show in some directions only (the sky), as pure haze (docs/results/medium_recovery.md,
+    session 29)."""
+    light_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """``axial`` light: the axis it starts from, in the run's (normalised) frame; learnt from there."""
     sh_degree: Annotated[int, Range(0, 2)] = 1
     """SH order of the medium light when ``light`` is ``sh`` (0, 1 or 2)."""
     light_space: Literal["field", "smooth", "global"] = "field"
@@ -150,6 +157,11 @@ class MediumConfig(ComponentConfig):
                 f"{prefix}reference-scale scales the generator's true medium; the {self.backend!r} "
                 "backend has none",
                 fix=f"add {prefix}backend reference, or leave {prefix}reference-scale at 1 1",
+            )
+        if math.hypot(*self.light_axis) < 1e-6:
+            raise ConfigError(
+                f"{prefix}light-axis {tuple(self.light_axis)} has no direction",
+                fix=f"give {prefix}light-axis a non-zero vector, e.g. 0 0 1",
             )
 
     def setup(self, bounds: FieldBounds | None = None, **kwargs: Any) -> MediumField:
@@ -259,6 +271,7 @@ def fourier_dim(octaves: int, dim: int = 3) -> int:
 
 
 DIR_ENCODING_DIM = fourier_dim(DIR_OCTAVES)
+AXIAL_ENCODING_DIM = fourier_dim(DIR_OCTAVES, dim=1)
 
 
 def fourier_encode(x: Tensor, octaves: int) -> Tensor:
@@ -287,7 +300,7 @@ class MediumHeads(nn.Module):
         config.check_values()
         self.sh_degree = int(config.sh_degree)
         n_light = 3 * num_sh_bases(self.sh_degree) if self.light_mode == "sh" else 3
-        dir_in = DIR_ENCODING_DIM if self.light_mode == "mlp" else 0
+        dir_in = {"mlp": DIR_ENCODING_DIM, "axial": AXIAL_ENCODING_DIM}.get(self.light_mode, 0)
         self.beta_head = nn.Sequential(nn.Linear(in_dim, h), nn.ReLU(), nn.Linear(h, 1))
         self.light_space = config.light_space
         light_in = (3 if self.light_space == "smooth" else in_dim) + dir_in  # smooth: box coordinates
@@ -299,6 +312,11 @@ class MediumHeads(nn.Module):
         self.light_feature = (
             nn.Parameter(torch.randn(in_dim) * 0.1) if self.light_space == "global" else None
         )  # [F]
+        self.light_axis = (
+            nn.Parameter(torch.tensor(config.light_axis, dtype=torch.float32))
+            if self.light_mode == "axial"
+            else None
+        )  # [3], normalised where used
         self.log_kappa = nn.Parameter(torch.zeros(()))
         with torch.no_grad():  # near-uniform start: the last layers barely see the features
             for head in (self.beta_head, self.light_head):
@@ -337,6 +355,10 @@ class MediumHeads(nn.Module):
             light_in = feat
         if self.light_mode == "mlp":
             light_in = torch.cat([light_in, encode_direction(dirs.to(feat))], dim=-1)
+        elif self.light_mode == "axial":
+            axis = F.normalize(self.light_axis.to(feat), dim=0)  # [3]
+            cosine = dirs.to(feat) @ axis  # [P]
+            light_in = torch.cat([light_in, fourier_encode(cosine[:, None], DIR_OCTAVES)], dim=-1)
         return light_in
 
     @property
@@ -352,7 +374,7 @@ class MediumHeads(nn.Module):
     def light(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> Tensor:
         """feat [P, F] (only its dtype is read for a ``global`` light, and P then may be any
         count matching dirs), dirs [P, 3] unit, coords [P, 3] (``smooth`` only) -> light [P, 3]."""
-        if self.light_space == "global" and self.light_mode != "mlp":
+        if self.light_space == "global" and self.light_mode in ("sh", "rgb"):
             # one input for every point: evaluate the head once
             raw = self.light_head(self.light_feature.to(feat))[None].expand(dirs.shape[0], -1)
         else:

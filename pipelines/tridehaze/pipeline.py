@@ -44,6 +44,7 @@ from pipelines.tridehaze.priors import (
     scaled_step,
 )
 from pipelines.tridehaze.probe import probe_haze
+from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.warmup import warmup_depths
 from tridehaze_plugin.config import NonNegative, Range, RegistryChoice
 from tridehaze_plugin.errors import ConfigError
@@ -144,6 +145,12 @@ class GaussianPipelineConfig(PipelineConfig):
     medium is too dense (docs/results/medium_recovery.md, session 14)."""
     dehaze_seed_colors: bool = True
     """Take the estimated haze out of the seed points' colours before initialising the Gaussians."""
+    sky_shell: Annotated[int, NonNegative] = 0
+    """Seed this many Gaussians evenly over the sphere around the medium's box (only those some
+    training view sees are kept), coloured by the views: the sky and far background then start at
+    a depth every view agrees on instead of as floaters near the cameras. It also lets a
+    semi-transparent surface show the shell behind it, against the random training background's
+    push to opacity: off (0) by default (docs/results/medium_recovery.md, session 29)."""
     seed_colors: Literal["nearest", "observed"] = "nearest"
     """How the seed colours are dehazed: ``nearest`` dehazes the dataset's point colour at the
     nearest camera's distance; ``observed`` re-reads every training view that sees the point and
@@ -255,7 +262,8 @@ class GaussianPipeline(Pipeline):
         )
         self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
         colors = self._initialize_medium(dcp, plan)
-        self.model = config.model.setup(points=scene.points, colors=colors, scene_extent=self.scene_extent)
+        points, colors = self._with_sky_shell(scene.points, colors, bounds)
+        self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
         self.model.to(datamanager.device)
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
@@ -291,6 +299,18 @@ class GaussianPipeline(Pipeline):
                 observed, seen = observed_point_colors(dm, list(dm.train_indices), points, est)
                 colors = torch.where(seen[:, None], observed, colors)
         return colors
+
+    def _with_sky_shell(
+        self, points: Tensor | None, colors: Tensor | None, bounds: FieldBounds
+    ) -> tuple[Tensor | None, Tensor | None]:
+        """The seed cloud [M, 3] and colours with ``sky_shell`` points appended (colours as float)."""
+        if self.config.sky_shell == 0 or points is None or len(points) == 0:
+            return points, colors
+        shell, shell_colors = sky_shell(self.datamanager, bounds, self.config.sky_shell)
+        base = torch.full_like(points, 0.5) if colors is None else torch.as_tensor(colors)
+        base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
+        pts = torch.cat([points.detach().float(), shell.to(points.device)])
+        return pts, torch.cat([base.to(points.device), shell_colors.to(points.device)])
 
     def _view_priors(self, dcp: dict[int, DCPResult], plan: _PriorPlan, seed: int) -> dict[int, ViewPrior]:
         """Per-view pseudo-depth and dark-channel transmittance (a warm-up run first if it is the source)."""

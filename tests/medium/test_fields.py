@@ -20,6 +20,7 @@ from components.medium.base import (
     fourier_encode,
 )
 from components.medium.fields import TriplaneField, VoxelField
+from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
 BACKENDS = ["triplane", "voxel", "mlp", "fourier", "constant", "none"]
@@ -221,6 +222,29 @@ def test_mlp_light_can_be_sharper_than_sh1(device) -> None:
     assert _fit_light(field, x, d, target) < 0.5 * _fit_light(sh1, x, d, target)
 
 
+def test_axial_light_depends_on_the_angle_to_its_axis_only(device) -> None:
+    """``light axial``: directions at the same angle to the axis get the same light, other angles
+    another; the axis itself learns (it gets a gradient), and it starts where the config says."""
+    axis = F.normalize(torch.tensor([0.3, -0.9, 0.3]), dim=0)
+    field = _make("constant", device, light="axial", light_space="global", light_axis=tuple(axis.tolist()))
+    _perturb_heads(field)
+    torch.testing.assert_close(F.normalize(field.heads.light_axis.detach().cpu(), dim=0), axis)
+    a, d = (
+        axis.to(device),
+        F.normalize(torch.randn(64, 3, generator=torch.Generator().manual_seed(3)), dim=-1),
+    )
+    d = d.to(device)
+    turn = torch.linalg.matrix_exp(  # rotations about the axis keep the angle to it
+        torch.tensor([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]], device=device) * 1.3
+    )
+    x = BOUNDS.center.to(device).expand(64, 3)
+    light, turned = field(x, d).light, field(x, d @ turn.T).light
+    torch.testing.assert_close(light, turned, rtol=1e-5, atol=1e-6)
+    assert (light - field(x, -d).light).abs().max() > 1e-4  # another angle, another light
+    light.sum().backward()
+    assert field.heads.light_axis.grad is not None and field.heads.light_axis.grad.abs().sum() > 0
+
+
 def test_spatial_variation_after_perturbation(device) -> None:
     """Grids and MLPs vary in space once the heads are non-trivial; the constant field never does."""
     x, _ = _points(device, 256)
@@ -356,7 +380,15 @@ def test_gaussian_bound_pixel_medium_is_over_compositing(device) -> None:
 
 @pytest.mark.parametrize("backend", FIELDS)
 @pytest.mark.parametrize(
-    "light", [("global", "mlp"), ("global", "sh"), ("global", "rgb"), ("field", "sh"), ("smooth", "mlp")]
+    "light",
+    [
+        ("global", "mlp"),
+        ("global", "sh"),
+        ("global", "rgb"),
+        ("global", "axial"),
+        ("field", "sh"),
+        ("smooth", "mlp"),
+    ],
 )
 def test_sample_rays_matches_per_sample_evaluation(device, backend: str, light: tuple[str, str]) -> None:
     """The march's per-ray evaluation (a global light once per ray) gives the values and gradients
@@ -384,3 +416,8 @@ def test_sample_rays_matches_per_sample_evaluation(device, backend: str, light: 
         torch.testing.assert_close(fast[1], fast[1][:, :1].expand(-1, 5, -1))
         if mode != "rgb":
             assert (fast[1][0, 0] - fast[1][1, 0]).abs().max() > 1e-4
+
+
+def test_axial_light_without_an_axis_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="light-axis .* has no direction"):
+        MediumConfig(backend="triplane", light="axial", light_axis=(0.0, 0.0, 0.0)).check_values()

@@ -73,6 +73,8 @@ ABLATIONS = [
     ("--pipeline.densify-grad", "compensated"),
     ("--pipeline.composite.ray-stride", "1"),
     ("--pipeline.seed-colors", "observed"),
+    ("--pipeline.medium.light", "axial"),
+    ("--pipeline.sky-shell", "500"),
 ]
 
 
@@ -87,6 +89,25 @@ def test_every_ablation_override_trains(hazy_scene, tmp_path, device, override):
     for name in trainer.pipeline.output_names():
         assert torch.isfinite(out[name]).all(), name
     assert (trainer.run_dir / "eval" / "metrics.json").is_file()
+
+
+def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tmp_path, device):
+    """``--pipeline.sky-shell N``: the seed cloud's Gaussians, then the shell's, at the radius of the
+    sphere around the medium's box."""
+    from rich.console import Console
+
+    built = {}
+    for n in (0, 800):
+        trainer = Trainer(_config(hazy_scene, tmp_path / str(n), device, "--pipeline.sky-shell", str(n)),
+                          console=Console(quiet=True))  # fmt: skip
+        trainer.setup()
+        built[n] = trainer.pipeline
+    plain, shell = built[0].model.means.detach(), built[800].model.means.detach()
+    assert 0 < len(shell) - len(plain) < 800
+    torch.testing.assert_close(shell[: len(plain)], plain)
+    bounds = built[800].medium.bounds
+    radius = (shell[len(plain) :] - bounds.center.to(shell)).norm(dim=-1)
+    torch.testing.assert_close(radius, torch.full_like(radius, float(bounds.half_size.norm())))
 
 
 def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
