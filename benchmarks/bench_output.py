@@ -52,8 +52,10 @@ def grouped_bars(
     series: list[tuple[str, list[float]]],
     ylabel: str,
     legend_above: bool = False,
+    zero_line: bool = False,
 ) -> None:
-    """One group of bars per label (one bar per series, values in label order), written to ``path``."""
+    """One group of bars per label (one bar per series, values in label order), written to ``path``;
+    ``zero_line`` draws y = 0 (for signed values)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -64,6 +66,8 @@ def grouped_bars(
     for i, (name, values) in enumerate(series):
         xs = [x + (i - (len(series) - 1) / 2) * width for x in range(len(labels))]
         ax.bar(xs, values, width, label=name, color=f"C{i}")
+    if zero_line:
+        ax.axhline(0.0, color="k", lw=0.8)
     ax.set_xticks(range(len(labels)), labels, fontsize=6, rotation=60, ha="right")
     ax.set_ylabel(ylabel)
     if legend_above:

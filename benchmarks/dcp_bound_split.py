@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main  # noqa: E402
+from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
 from components.losses.dcp import dark_channel_bound, default_patch  # noqa: E402
@@ -140,24 +140,13 @@ def markdown(rows: list[dict]) -> str:
 
 def plot(rows: list[dict], path: Path) -> None:
     """T bias on tight and loose pixels per run."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(max(6, 0.7 * len(rows)), 5))
-    width = 0.4
-    for i, region in enumerate(REGIONS):
-        xs = [x + (i - 0.5) * width for x in range(len(rows))]
-        ax.bar(xs, [r[f"{region}_bias"] or 0.0 for r in rows], width, label=f"{region} pixels", color=f"C{i}")
-    ax.axhline(0.0, color="k", lw=0.8)
-    labels = [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows]
-    ax.set_xticks(range(len(rows)), labels, fontsize=6, rotation=60, ha="right")
-    ax.set_ylabel("T error, model - true\n(< 0: too much haze)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    grouped_bars(
+        path,
+        [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows],
+        [(f"{region} pixels", [r[f"{region}_bias"] or 0.0 for r in rows]) for region in REGIONS],
+        "T error, model - true\n(< 0: too much haze)",
+        zero_line=True,
+    )
 
 
 def main() -> None:
