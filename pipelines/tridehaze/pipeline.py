@@ -150,7 +150,8 @@ class GaussianPipelineConfig(PipelineConfig):
     training view sees are kept), coloured by the views: the sky and far background then start at
     a depth every view agrees on instead of as floaters near the cameras. It also lets a
     semi-transparent surface show the shell behind it, against the random training background's
-    push to opacity: off (0) by default (docs/results/medium_recovery.md, session 29)."""
+    push to opacity: off (0) by default (docs/results/medium_recovery.md, session 29). Without a
+    seed cloud it does nothing: the random start already fills the box."""
     seed_colors: Literal["nearest", "observed"] = "nearest"
     """How the seed colours are dehazed: ``nearest`` dehazes the dataset's point colour at the
     nearest camera's distance; ``observed`` re-reads every training view that sees the point and
