@@ -29,7 +29,7 @@ if str(REPO) not in sys.path:
 
 from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
-from sky_split import arm_of, masked_sums, psnr_of  # noqa: E402
+from sky_split import accumulate, arm_of, masked_sums, psnr_of  # noqa: E402
 
 from components.data.cameras import Cameras  # noqa: E402
 from components.losses.dcp import dehaze, estimate_dcp  # noqa: E402
@@ -50,12 +50,6 @@ def background_mask(camera: Cameras, points: Tensor, true_z: Tensor) -> Tensor:
     return true_z > DEPTH_BEYOND_FACTOR * far
 
 
-def _accumulate(total: dict[str, list[float]], sums: dict[str, tuple[float, int]]) -> None:
-    for k, (se, n) in sums.items():
-        total[k][0] += se
-        total[k][1] += n
-
-
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
@@ -70,10 +64,10 @@ def diagnose(config: Path) -> dict:
         masks = {"all": torch.ones_like(bg), "located": ~bg, "background": bg}
         reference = dm.clean_image(view.index)[..., :3].cpu()  # [H, W, 3]
         out = pipe.render(view.camera)
-        _accumulate(sums["model"], masked_sums(out["clean"].cpu(), reference, masks))
+        accumulate(sums["model"], masked_sums(out["clean"].cpu(), reference, masks))
         hazy = dm.image(view.index)[..., :3].cpu().numpy()
         flat = torch.from_numpy(dehaze(hazy, estimate_dcp(hazy)))  # [H, W, 3]
-        _accumulate(sums["dcp_2d"], masked_sums(flat, reference, masks))
+        accumulate(sums["dcp_2d"], masked_sums(flat, reference, masks))
         t_sum["model"] += float(out["transmittance"][..., 0].cpu()[bg].sum())
         t_sum["true"] += float(view.true_t[..., 0].cpu()[bg].sum())
         n_bg += int(bg.sum())

@@ -49,6 +49,13 @@ def masked_sums(image: Tensor, reference: Tensor, masks: dict[str, Tensor]) -> d
     return {k: (float(se[m].sum()), int(m.sum())) for k, m in masks.items()}
 
 
+def accumulate(total: dict[str, list[float]], sums: dict[str, tuple[float, int]]) -> None:
+    """Add :func:`masked_sums`' (squared error, pixels) per region into ``total``'s running sums."""
+    for k, (se, n) in sums.items():
+        total[k][0] += se
+        total[k][1] += n
+
+
 def region_sums(clean: Tensor, reference: Tensor, sky: Tensor) -> dict[str, tuple[float, int]]:
     """:func:`masked_sums` over the whole picture, the sky and the surfaces. clean, reference:
     [H, W, 3]; sky: [H, W] bool."""
@@ -84,9 +91,7 @@ def diagnose(config: Path) -> dict:
         for t0 in sums:
             composite.clean_t0 = t0
             out = pipe.render(view.camera)
-            for k, (se, n) in region_sums(out["clean"], reference, sky).items():
-                sums[t0][k][0] += se
-                sums[t0][k][1] += n
+            accumulate(sums[t0], region_sums(out["clean"], reference, sky))
         t_sum["model"] += float(out["transmittance"][..., 0][sky].sum())
         t_sum["true"] += float(view.true_t[..., 0][sky].sum())
         n_views += 1

@@ -8,14 +8,12 @@ from pathlib import Path
 import torch
 
 from pipelines.engine.run_loader import load_run
-from tests.eval.diagnosis_script import REPO, run_diagnosis
+from tests.eval.diagnosis_script import load_benchmark, run_diagnosis
 
 
 def _model_t_mae(config: Path, monkeypatch) -> float:
     """Mean |T_model - T_true| over the test views' pixels, from the run itself."""
-    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
-    from reference_views import reference_views
-
+    reference_views = load_benchmark(monkeypatch, "reference_views").reference_views
     run = load_run(config)
     errors = []
     with torch.no_grad():
