@@ -40,8 +40,9 @@ def vanilla_gs() -> TrainerConfig:
         "compensates the clean branch's gradient by 1/T (MD-TGC). Differs from the paper "
         "(tri-dehaze-paper) where measured: opaque surfaces, the dark channel as a lower bound, a "
         "longer Stage I, the rendered depth held to the SfM depth and free to move with the haze, "
-        "the clean render faded to the haze light where T < 0.15, and one medium light for the "
-        "whole scene with a sharper direction model (docs/results/medium_recovery.md)."
+        "the clean render faded to the haze light where T < 0.15, one medium light for the "
+        "whole scene with a sharper direction model, and a stronger dark-channel bound where that "
+        "light proves the same along every ray (docs/results/medium_recovery.md)."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -61,6 +62,9 @@ def tri_dehaze() -> TrainerConfig:
     The medium light is one light for the whole scene (``light_space`` global), with a direction
     model sharper than SH (``light`` mlp): a light that may vary from cell to cell follows the
     Gaussians' colours, and SH order 1 cannot hold a sun's forward-scattering glow (session 23).
+    ``lambda_dcp_isotropic`` raises the dark channel's weight from 0.1 to 1 at a quarter of the run
+    where that light has proved the same along every ray: nothing then pins the light's brightness
+    but the bound, and the medium would end too dense (session 30).
     """
     paper = _paper_pipeline()
     pipeline = replace(
@@ -71,6 +75,7 @@ def tri_dehaze() -> TrainerConfig:
         lambda_depth_metric=0.05,
         composite=replace(paper.composite, depth_gradient=True, clean_t0=0.15),
         medium=replace(paper.medium, light_space="global", light="mlp"),
+        lambda_dcp_isotropic=1.0,
     )
     return TrainerConfig(method_name="tri-dehaze", pipeline=pipeline)
 

@@ -3,6 +3,7 @@ medium, outputs are complete, densification sees uncompensated gradients, runs r
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -75,6 +76,7 @@ ABLATIONS = [
     ("--pipeline.seed-colors", "observed"),
     ("--pipeline.medium.light", "axial"),
     ("--pipeline.sky-shell", "500"),
+    ("--pipeline.lambda-dcp-isotropic", "0"),
 ]
 
 
@@ -89,6 +91,33 @@ def test_every_ablation_override_trains(hazy_scene, tmp_path, device, override):
     for name in trainer.pipeline.output_names():
         assert torch.isfinite(out[name]).all(), name
     assert (trainer.run_dir / "eval" / "metrics.json").is_file()
+
+
+def test_the_light_isotropy_decision_is_logged_and_followed(hazy_scene, tmp_path, device):
+    """``--pipeline.lambda-dcp-isotropic``: one decision in Stage I, in logs/decisions.jsonl, and
+    the weight it names is the one the dark-channel term gets from then on."""
+    cfg = _config(hazy_scene, tmp_path, device, "--pipeline.lambda-dcp-isotropic", "1",
+                  "--pipeline.light-decision-fraction", "0.34")  # fmt: skip
+    trainer = _train(cfg)
+    lines = (trainer.run_dir / "logs" / "decisions.jsonl").read_text().splitlines()
+    records = [r for r in map(json.loads, lines) if "light_cv" in r]
+    assert len(records) == 1 and records[0]["step"] <= 3  # within Stage I (frozen at step 3)
+    cv, weight = records[0]["light_cv"], records[0]["dcp_weight"]
+    assert weight == (1.0 if cv is not None and cv < 0.03 else 0.1)
+    assert trainer.pipeline.light_isotropy.weight(STEPS) == weight
+
+
+def test_no_light_decision_where_the_medium_freezes_first(hazy_scene, tmp_path, device):
+    """The dark-channel term acts in Stage I only: a decision due after the freeze is not made."""
+    from rich.console import Console
+
+    enabled = {}
+    for freeze in (3, 2):  # the decision is due at step 2 of 6
+        cfg = _config(hazy_scene, tmp_path / str(freeze), device, "--pipeline.freeze-step", str(freeze))
+        trainer = Trainer(cfg, console=Console(quiet=True))
+        trainer.setup()
+        enabled[freeze] = trainer.pipeline.light_isotropy.enabled
+    assert enabled == {3: True, 2: False}
 
 
 def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tmp_path, device):

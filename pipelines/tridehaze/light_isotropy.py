@@ -1,0 +1,98 @@
+"""The dark-channel term's weight, raised once the medium's light proves the same along every ray.
+
+Nothing in hazy photos pins the haze light's brightness where no pixel sees it (a room, a
+courtyard: docs/results/medium_recovery.md, session 18); the light then starts from the dark
+channel's airlight, which is too dim there, and the medium ends too dense. A strong own-light
+dark-channel bound corrects that. Where the light depends on the direction (sunlit,
+forward-scattering haze), the sky and the sun's side show it and the photos do pin it; a strong
+bound there only thins the field along the sky and brightens the light (session 28). Which case
+a scene is shows in the medium's own light a few hundred steps into Stage I: the spread of its
+per-ray light (S / (1 - T)) over the pixels it scatters into.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from pipelines.engine.contract import Decision
+
+MIN_HAZE = 0.2
+"""Pixels whose rendered 1 - T is below this say little about the light (S / (1 - T) is noise)."""
+
+
+class LightIsotropy(nn.Module):
+    """Collects the per-ray light's spread over a window of steps and decides the weight once.
+
+    The sums are buffers, so a run resumed inside the window or after the decision goes on as an
+    uninterrupted one would (the decision is kept, not made again)."""
+
+    def __init__(self, weak: float, strong: float, threshold: float, window: tuple[int, int]) -> None:
+        super().__init__()
+        self.weak, self.strong, self.threshold = weak, strong, threshold
+        self.start, self.decision_step = window
+        self.register_buffer("sums", torch.zeros(3, dtype=torch.float64))  # count, sum, sum of squares
+        self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # -1: not yet; else the cv
+        self.decisions: list[str | Decision] = []
+        """The decision, once made (the trainer prints it and writes it to logs/decisions.jsonl)."""
+        self._strong: bool | None = None  # the decided buffer read once, not at every step
+
+    @property
+    def enabled(self) -> bool:
+        return self.strong > 0.0 and self.strong != self.weak
+
+    def observe(self, step: int, scattering: Tensor, transmittance: Tensor) -> None:
+        """Add one step's per-ray light: scattering [H, W, 3], transmittance [H, W, 1]."""
+        if not self.enabled or not self.start <= step < self.decision_step:
+            return
+        haze = (1.0 - transmittance.detach()).clamp_min(1e-6)  # [H, W, 1]
+        light = (scattering.detach() / haze).mean(dim=-1)  # [H, W] luminance of the ray's light
+        keep = (haze[..., 0] >= MIN_HAZE).to(light.dtype)  # [H, W] a weight: no host sync
+        light = light.double()
+        keep = keep.double()
+        self.sums += torch.stack([keep.sum(), (keep * light).sum(), (keep * light * light).sum()])
+
+    def weight(self, step: int) -> float:
+        """The dark-channel weight at ``step``: ``weak`` until the decision, then the one decided.
+        (Strong from the start and weak after an anisotropic verdict does not work: sunlit scenes
+        do not recover from the strong bound's first steps, session 30.)"""
+        if not self.enabled or step < self.decision_step:
+            return self.weak
+        if self._strong is None:
+            if float(self.decided) < 0.0:
+                self._decide(step)
+            self._strong = float(self.decided) < self.threshold
+        return self.strong if self._strong else self.weak
+
+    def _decide(self, step: int) -> None:
+        n, s, ss = (float(v) for v in self.sums)
+        cv = None
+        if n >= 1.0:
+            mean = s / n
+            cv = max(ss / n - mean * mean, 0.0) ** 0.5 / max(mean, 1e-12)
+        # no pixel with enough haze: nothing for the bound to correct, and nothing to decide on
+        self.decided.fill_(float("inf") if cv is None else cv)
+        strong = cv is not None and cv < self.threshold
+        weight = self.strong if strong else self.weak
+        if cv is None:
+            text = "no pixel has enough haze to measure the medium's light on"
+        elif strong:
+            text = (
+                f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): "
+                "one light, which only the dark channel pins"
+            )
+        else:
+            text = f"the medium's light varies by {cv:.1%} over the rays (not under {self.threshold:.1%})"
+        self.decisions.append(
+            Decision(
+                f"{text}; dark-channel weight {weight:g} from step {step}",
+                {"light_cv": cv, "dcp_weight": weight},
+            )
+        )
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints from before this module: not decided yet, nothing collected
+        state_dict.setdefault(prefix + "sums", self.sums.clone())
+        state_dict.setdefault(prefix + "decided", self.decided.clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._strong = None

@@ -1,0 +1,103 @@
+"""The dark-channel weight raised where the medium's light is the same along every ray: it decides
+once, at its step, from the window's per-ray light, and a resumed run keeps the decision."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+
+from pipelines.tridehaze.light_isotropy import LightIsotropy
+
+
+def _maps(light: torch.Tensor, t: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
+    """Scattering [H, W, 3] and transmittance [H, W, 1] whose per-ray light is ``light`` [H, W]."""
+    T = torch.full((*light.shape, 1), t)
+    return light[..., None].expand(*light.shape, 3) * (1.0 - T), T
+
+
+def _run(light: torch.Tensor, steps: range, module: LightIsotropy, t: float = 0.5) -> list[float]:
+    S, T = _maps(light, t)
+    weights = []
+    for step in steps:
+        module.observe(step, S, T)
+        weights.append(module.weight(step))
+    return weights
+
+
+def test_an_even_light_gets_the_strong_weight_from_the_decision_step():
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(5, 10))
+    light = 0.7 + 0.02 * torch.rand(8, 8, generator=torch.Generator().manual_seed(0))  # cv ~0.008
+    weights = _run(light, range(15), iso)
+    assert weights == [0.1] * 10 + [1.0] * 5
+    assert len(iso.decisions) == 1
+    assert iso.decisions[0].data["dcp_weight"] == 1.0
+    assert iso.decisions[0].data["light_cv"] == pytest.approx(
+        float(light.std(unbiased=False) / light.mean()), rel=1e-4
+    )
+    assert "one light" in iso.decisions[0].message and "weight 1 from step 10" in iso.decisions[0].message
+
+
+def test_a_light_that_varies_by_direction_keeps_the_weak_weight():
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    light = torch.linspace(0.5, 0.9, 64).reshape(8, 8)  # cv ~0.17, a sun on one side
+    assert _run(light, range(8), iso) == [0.1] * 8
+    assert iso.decisions[0].data == {"light_cv": pytest.approx(0.17, abs=0.01), "dcp_weight": 0.1}
+    assert (
+        "varies by 16.8%" in iso.decisions[0].message and "weight 0.1 from step 4" in iso.decisions[0].message
+    )
+
+
+def test_only_the_window_counts_and_thin_haze_is_left_out():
+    """Steps outside [start, decision) and pixels with under 20 % haze add nothing."""
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(3, 6))
+    even = torch.full((4, 4), 0.6)
+    S, T = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4))  # a spread light ...
+    for step in (0, 1, 2, 6, 7):  # ... outside the window
+        iso.observe(step, S, T)
+    S_thin, T_thin = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4), t=0.9)  # ... or behind 10 % haze
+    for step in (3, 4, 5):
+        iso.observe(step, S_thin, T_thin)
+    assert float(iso.sums[0]) == 0.0
+    _run(even, range(3, 6), iso)
+    assert float(iso.sums[0]) == 3 * 16
+    assert iso.weight(6) == 1.0
+
+
+def test_no_hazy_pixel_decides_weak_and_the_record_is_json():
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 2))
+    assert _run(torch.full((4, 4), 0.6), range(4), iso, t=0.95) == [0.1] * 4
+    record = iso.decisions[0]
+    assert record.data["light_cv"] is None
+    json.dumps(record.data, allow_nan=False)  # logs/decisions.jsonl stays strict JSON
+
+
+def test_off_when_the_strong_weight_is_zero_or_the_same():
+    for strong in (0.0, 0.1):
+        iso = LightIsotropy(weak=0.1, strong=strong, threshold=0.065, window=(0, 2))
+        assert _run(torch.full((4, 4), 0.6), range(4), iso) == [0.1] * 4
+        assert float(iso.sums[0]) == 0.0 and not iso.decisions
+
+
+def test_a_resumed_run_keeps_the_decision_and_the_window_sums():
+    light = torch.full((4, 4), 0.6)
+    first = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    _run(light, range(2), first)  # stopped inside the window
+    mid = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    mid.load_state_dict(first.state_dict())
+    assert torch.equal(mid.sums, first.sums)
+    _run(light, range(2, 6), mid)
+    assert mid.weight(5) == 1.0
+    after = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    after.load_state_dict(mid.state_dict())
+    assert after.weight(5) == 1.0 and not after.decisions  # decided once, not again
+    assert math.isclose(float(after.decided), float(mid.decided))
+
+
+def test_checkpoints_from_before_the_module_load():
+    old = {}  # a pipeline state dict without the module's buffers
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    iso.load_state_dict(old)
+    assert float(iso.decided) == -1.0 and float(iso.sums[0]) == 0.0
