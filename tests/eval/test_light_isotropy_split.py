@@ -1,0 +1,31 @@
+"""benchmarks/light_isotropy_split.py: each run's logged light spread and the weight it chose."""
+
+from __future__ import annotations
+
+import json
+
+from tests.eval.diagnosis_script import run_diagnosis
+from tests.export.tiny_run import make_scene, train_tiny
+
+
+def test_rows_follow_each_runs_decision(tmp_path):
+    scene = make_scene(tmp_path / "scene")
+    configs = {}
+    for name, threshold in (("always", "1.0"), ("never", "0.0")):
+        configs[name] = train_tiny(
+            scene, tmp_path / name, "--pipeline.freeze-step", "6", "--pipeline.light-isotropy-cv", threshold,
+            steps=8,
+        )  # fmt: skip  # the decision at step 2, inside Stage I
+    out = tmp_path / "split"
+    run_diagnosis("light_isotropy_split.py", list(configs.values()), out)
+    rows = {r["run"]: r for r in json.loads(out.with_suffix(".json").read_text())}
+    for name, weight in (("always", 1.0), ("never", 0.1)):
+        run_dir = configs[name].parent
+        logged = [json.loads(x) for x in (run_dir / "logs" / "decisions.jsonl").read_text().splitlines()]
+        logged = [r for r in logged if "light_cv" in r]
+        row = rows[str(run_dir)]
+        assert len(logged) == 1 and row["light_cv"] == logged[0]["light_cv"]
+        assert row["dcp_weight"] == weight and row["decision_step"] == logged[0]["step"]
+        assert row["restoration_psnr"] is None  # no td-eval ran
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert "| scene | seed | light spread (cv)" in out.with_suffix(".md").read_text()
