@@ -19,6 +19,8 @@ from pipelines.engine.contract import Decision
 
 MIN_HAZE = 0.2
 """Pixels whose rendered 1 - T is below this say little about the light (S / (1 - T) is noise)."""
+NO_MEASUREMENT = -2.0
+"""The ``decided`` buffer's value when no pixel had enough haze in the window (the weight stays weak)."""
 
 
 class LightIsotropy(nn.Module):
@@ -32,7 +34,8 @@ class LightIsotropy(nn.Module):
         self.weak, self.strong, self.threshold = weak, strong, threshold
         self.start, self.decision_step = window
         self.register_buffer("sums", torch.zeros(3, dtype=torch.float64))  # count, sum, sum of squares
-        self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # -1: not yet; else the cv
+        # -1: not decided yet; NO_MEASUREMENT: decided without one (checkpoints hold finite values only)
+        self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # else the cv
         self.decisions: list[str | Decision] = []
         """The decision, once made (the trainer prints it and writes it to logs/decisions.jsonl)."""
         self._strong: bool | None = None  # the decided buffer read once, not at every step
@@ -59,9 +62,9 @@ class LightIsotropy(nn.Module):
         if not self.enabled or step < self.decision_step:
             return self.weak
         if self._strong is None:
-            if float(self.decided) < 0.0:
+            if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = float(self.decided) < self.threshold
+            self._strong = 0.0 <= float(self.decided) < self.threshold
         return self.strong if self._strong else self.weak
 
     def _decide(self, step: int) -> None:
@@ -71,7 +74,7 @@ class LightIsotropy(nn.Module):
             mean = s / n
             cv = max(ss / n - mean * mean, 0.0) ** 0.5 / max(mean, 1e-12)
         # no pixel with enough haze: nothing for the bound to correct, and nothing to decide on
-        self.decided.fill_(float("inf") if cv is None else cv)
+        self.decided.fill_(NO_MEASUREMENT if cv is None else cv)
         strong = cv is not None and cv < self.threshold
         weight = self.strong if strong else self.weak
         if cv is None:

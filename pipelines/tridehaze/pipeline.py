@@ -430,7 +430,7 @@ class GaussianPipeline(Pipeline):
         cfg = self.config
         T = med.pixel_transmittance()[..., 0]  # [H, W]
         loss = T.new_zeros(())
-        self.light_isotropy.observe(step, med.scattering, med.pixel_transmittance())
+        self.light_isotropy.observe(step, med.scattering, T[..., None])
         lambda_dcp = self.light_isotropy.weight(step)
         if stage == 1 and lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
             t_prior, mask = prior.t_dcp, None

@@ -28,7 +28,9 @@ def _train(scene: Path, out: Path, steps: int, *extra: str, resume: Path | None 
         "tri-dehaze", "--data", str(scene), "--output-dir", str(out), "--max-steps", str(steps),
         "--pipeline.depth-prior", "sfm", "--pipeline.rasterizer.backend", "torch", "--threads", "1",
         "--pipeline.densify.refine-start", "20", "--pipeline.densify.refine-every", "10",
-        "--pipeline.densify.grow-grad2d", "1e-9", "--steps-per-save", "10", *extra,
+        "--pipeline.densify.grow-grad2d", "1e-9", "--steps-per-save", "10",
+        "--pipeline.lambda-dcp-isotropic", "0",  # its own decision is tested in tests/medium
+        *extra,
     ])  # fmt: skip
     t = Trainer(cfg, console=Console(quiet=True), resume=resume)
     t.setup()

@@ -72,6 +72,10 @@ def test_no_hazy_pixel_decides_weak_and_the_record_is_json():
     record = iso.decisions[0]
     assert record.data["light_cv"] is None
     json.dumps(record.data, allow_nan=False)  # logs/decisions.jsonl stays strict JSON
+    assert all(torch.isfinite(b).all() for b in iso.buffers())  # checkpoints refuse non-finite values
+    resumed = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 2))
+    resumed.load_state_dict(iso.state_dict())
+    assert resumed.weight(3) == 0.1 and not resumed.decisions
 
 
 def test_off_when_the_strong_weight_is_zero_or_the_same():
