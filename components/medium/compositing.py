@@ -130,6 +130,11 @@ class MediumRender:
             return self.transmittance
         return self.transmittance * self.coverage
 
+    def ray_light(self, min_haze: float) -> Tensor:
+        """[H, W, 3] the mean light each pixel's ray scatters, S / (1 - T), with 1 - T taken as at
+        least ``min_haze`` (where the haze is thinner the ratio is noise)."""
+        return self.scattering / (1.0 - self.pixel_transmittance()).clamp_min(min_haze)
+
     def clean_with_sky(self, clean: Tensor) -> Tensor:
         """The premultiplied clean render [H, W, 3] with the uncovered share filled by the sky light
         (unchanged when the clean render shows the background colour)."""
@@ -144,7 +149,7 @@ class MediumRender:
         if t0 <= 0.0:
             return clean
         T = self.pixel_transmittance()  # [H, W, 1]
-        light = self.scattering / (1.0 - T).clamp_min(1.0 - t0)  # [H, W, 3]
+        light = self.ray_light(1.0 - t0)  # [H, W, 3]
         w = T / T.clamp_min(t0)  # [H, W, 1]: 1 where T >= t0
         return w * clean + (1.0 - w) * light
 

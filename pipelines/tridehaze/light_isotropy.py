@@ -13,8 +13,9 @@ per-ray light (S / (1 - T)) over the pixels it scatters into.
 from __future__ import annotations
 
 import torch
-from torch import Tensor, nn
+from torch import nn
 
+from components.medium.compositing import MediumRender
 from pipelines.engine.contract import Decision
 
 MIN_HAZE = 0.2
@@ -44,12 +45,12 @@ class LightIsotropy(nn.Module):
     def enabled(self) -> bool:
         return self.strong > 0.0 and self.strong != self.weak
 
-    def observe(self, step: int, scattering: Tensor, transmittance: Tensor) -> None:
-        """Add one step's per-ray light: scattering [H, W, 3], transmittance [H, W, 1]."""
+    def observe(self, step: int, med: MediumRender) -> None:
+        """Add one step's per-ray light (nothing is computed outside the window)."""
         if not self.enabled or not self.start <= step < self.decision_step:
             return
-        haze = (1.0 - transmittance.detach()).clamp_min(1e-6)  # [H, W, 1]
-        light = (scattering.detach() / haze).mean(dim=-1)  # [H, W] luminance of the ray's light
+        haze = 1.0 - med.pixel_transmittance().detach()  # [H, W, 1]
+        light = med.ray_light(1e-6).detach().mean(dim=-1)  # [H, W] luminance of the ray's light
         keep = (haze[..., 0] >= MIN_HAZE).to(light.dtype)  # [H, W] a weight: no host sync
         light = light.double()
         keep = keep.double()

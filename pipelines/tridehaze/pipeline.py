@@ -430,7 +430,7 @@ class GaussianPipeline(Pipeline):
         cfg = self.config
         T = med.pixel_transmittance()[..., 0]  # [H, W]
         loss = T.new_zeros(())
-        self.light_isotropy.observe(step, med.scattering, T[..., None])
+        self.light_isotropy.observe(step, med)
         lambda_dcp = self.light_isotropy.weight(step)
         if stage == 1 and lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
             t_prior, mask = prior.t_dcp, None
@@ -467,10 +467,9 @@ class GaussianPipeline(Pipeline):
     def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:
         """The dark-channel bound on T [H, W] with the medium's light along each ray as airlight
         (S / (1 - T), detached), and where it is defined: pixels with at least 5 % haze."""
-        T = med.pixel_transmittance().detach()  # [H, W, 1]
-        haze = 1.0 - T
-        light = med.scattering.detach() / haze.clamp_min(0.05)  # [H, W, 3]
-        H, W = T.shape[:2]
+        haze = 1.0 - med.pixel_transmittance().detach()  # [H, W, 1]
+        light = med.ray_light(0.05).detach()  # [H, W, 3]
+        H, W = haze.shape[:2]
         bound = dark_channel_bound(target, light, default_patch(H, W))  # [H, W]
         return bound, haze[..., 0] >= 0.05
 

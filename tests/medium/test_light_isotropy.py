@@ -9,20 +9,22 @@ import math
 import pytest
 import torch
 
+from components.medium.compositing import MediumRender
 from pipelines.tridehaze.light_isotropy import LightIsotropy
 
 
-def _maps(light: torch.Tensor, t: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
-    """Scattering [H, W, 3] and transmittance [H, W, 1] whose per-ray light is ``light`` [H, W]."""
-    T = torch.full((*light.shape, 1), t)
-    return light[..., None].expand(*light.shape, 3) * (1.0 - T), T
+def _maps(light: torch.Tensor, t: float = 0.5) -> MediumRender:
+    """A medium render (transmittance ``t``) whose per-ray light is ``light`` [H, W]."""
+    T = torch.full((*light.shape, 1), t)  # [H, W, 1]
+    S = light[..., None].expand(*light.shape, 3) * (1.0 - T)  # [H, W, 3]
+    return MediumRender(transmittance=T, scattering=S, end_depth=torch.ones_like(T))
 
 
 def _run(light: torch.Tensor, steps: range, module: LightIsotropy, t: float = 0.5) -> list[float]:
-    S, T = _maps(light, t)
+    med = _maps(light, t)
     weights = []
     for step in steps:
-        module.observe(step, S, T)
+        module.observe(step, med)
         weights.append(module.weight(step))
     return weights
 
@@ -54,12 +56,12 @@ def test_only_the_window_counts_and_thin_haze_is_left_out():
     """Steps outside [start, decision) and pixels with under 20 % haze add nothing."""
     iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(3, 6))
     even = torch.full((4, 4), 0.6)
-    S, T = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4))  # a spread light ...
+    spread = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4))  # a spread light ...
     for step in (0, 1, 2, 6, 7):  # ... outside the window
-        iso.observe(step, S, T)
-    S_thin, T_thin = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4), t=0.9)  # ... or behind 10 % haze
+        iso.observe(step, spread)
+    thin = _maps(torch.linspace(0.1, 1.0, 16).reshape(4, 4), t=0.9)  # ... or behind 10 % haze
     for step in (3, 4, 5):
-        iso.observe(step, S_thin, T_thin)
+        iso.observe(step, thin)
     assert float(iso.sums[0]) == 0.0
     _run(even, range(3, 6), iso)
     assert float(iso.sums[0]) == 3 * 16
