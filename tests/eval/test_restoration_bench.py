@@ -9,8 +9,11 @@ import sys
 import pytest
 
 from pipelines.experiments.restoration_bench import (
+    BENCHMARK,
+    HOLDOUT,
     SCENES,
     Targets,
+    build,
     check_targets,
     markdown,
     method_order_warning,
@@ -31,6 +34,41 @@ def test_the_set_covers_every_layout_and_hazy_preset():
 
     assert {layout for layout, _ in SCENES} == set(LAYOUTS)
     assert {haze for _, haze in SCENES} == set(PRESETS) - {"none"}
+
+
+def test_the_holdout_set_shares_no_scene_with_the_benchmark_and_is_built_at_its_own_size(
+    tmp_path, monkeypatch
+):
+    """The out-of-sample set: other layout and haze pairs, another seed, td-synth's default size."""
+    from components.synth.generate import SceneConfig
+    from components.synth.layouts import LAYOUTS
+    from pipelines.experiments import restoration_bench as rb
+
+    assert not set(HOLDOUT.scenes) & set(BENCHMARK.scenes) and HOLDOUT.seed != BENCHMARK.seed
+    assert {layout for layout, _ in HOLDOUT.scenes} == set(LAYOUTS) and len(set(HOLDOUT.names())) == 8
+    default = SceneConfig(output_dir=tmp_path)
+    assert (HOLDOUT.width, HOLDOUT.height, HOLDOUT.num_views) == (
+        default.width,
+        default.height,
+        default.num_views,
+    )
+    made = []
+    monkeypatch.setattr(rb, "generate_scene", made.append)
+    paths = build(tmp_path, ["street-dense", "courtyard-patchy"], log=lambda _: None, scene_set=HOLDOUT)
+    assert [c.output_dir.name for c in made] == ["street-dense"]  # a benchmark name is not the holdout's
+    cfg = made[0]
+    assert (cfg.layout, cfg.haze, cfg.seed, cfg.width, cfg.height, cfg.num_views) == (
+        "street",
+        "dense",
+        11,
+        160,
+        120,
+        32,
+    )
+    assert [p.name for p in paths] == ["street-dense", "courtyard-patchy"]  # the other: a user's own folder
+    made.clear()
+    build(tmp_path, ["room-uniform"], log=lambda _: None)
+    assert (made[0].seed, made[0].width, made[0].num_views) == (5, 96, 24)  # the benchmark's, by default
 
 
 def test_rows_average_seeds_and_targets_name_the_worst_scene():
@@ -99,6 +137,12 @@ def test_td_bench_restoration_end_to_end(tmp_path):
     assert bad.returncode == 2 and "moon-fog" in bad.stderr and "Traceback" not in bad.stderr
     assert "no dataset" in bad.stderr
     assert not (tmp_path / "set2").exists()
+    # a benchmark scene's name is not a holdout scene: the error names the holdout's
+    bad = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", "--scene-set", "holdout",
+                          "--scenes", "room-uniform", "--set-dir", str(tmp_path / "set3")],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert bad.returncode == 2 and "holdout set" in bad.stderr and "room-homogeneous" in bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "set3").exists()
 
 
 def test_a_baseline_reported_against_the_method_under_test_is_warned_about():
