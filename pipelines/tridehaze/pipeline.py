@@ -20,7 +20,6 @@ from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import depth_spread, edge_aware_smoothness, log_depth_l1, pearson_depth_loss
-from components.losses.opacity import opacity_entropy
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
@@ -103,10 +102,6 @@ class GaussianPipelineConfig(PipelineConfig):
     march, the less haze, and the scene takes up the rest); this draws them onto the surface,
     like Mip-NeRF 360's distortion loss. It costs a second rasterization of three channels (kept
     out of densification's statistics); 0 = off."""
-    lambda_opacity_entropy: Annotated[float, NonNegative] = 0.0
-    """Weight of the Gaussians' mean binary opacity entropy, -o ln o - (1 - o) ln(1 - o): each
-    Gaussian either a surface or nothing. Half-transparent Gaussians stacked in front of a surface
-    pull the blended depth, to which the medium is marched, short of it; 0 = off."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -411,7 +406,7 @@ class GaussianPipeline(Pipeline):
         self, cam: Cameras, depth: Tensor, target: Tensor, prior: ViewPrior | None, metrics: dict
     ) -> Tensor:
         """The Gaussians' own loss terms (depth correlation and smoothness, metric depth, depth
-        spread, opacity entropy); their detached values go into ``metrics``."""
+        spread); their detached values go into ``metrics``."""
         cfg = self.config
         loss = depth.new_zeros(())
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
@@ -435,10 +430,6 @@ class GaussianPipeline(Pipeline):
             spread = self._depth_spread(cam)
             loss = loss + cfg.lambda_depth_spread * spread
             metrics["depth_spread"] = spread.detach()
-        if cfg.lambda_opacity_entropy > 0:
-            entropy = opacity_entropy(self.model.opacities)
-            loss = loss + cfg.lambda_opacity_entropy * entropy
-            metrics["opacity_entropy"] = entropy.detach()
         return loss
 
     def _medium_priors(

@@ -77,7 +77,6 @@ ABLATIONS = [
     ("--pipeline.medium.light", "axial"),
     ("--pipeline.sky-shell", "500"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
-    ("--pipeline.lambda-opacity-entropy", "0.1"),
 ]
 
 
@@ -314,16 +313,3 @@ def test_a_known_airlight_starts_the_medium_and_sets_the_priors(hazy_scene, tmp_
     assert other.init_info["init_airlight"] != pipe.init_info["init_airlight"]
     i = next(iter(pipe.priors))
     assert not torch.equal(other.priors[i].t_dcp, pipe.priors[i].t_dcp)
-
-
-def test_opacity_entropy_moves_the_opacities_away_from_half(hazy_scene, tmp_path, device):
-    """``--pipeline.lambda-opacity-entropy``: the same run with the prior ends with less opacity
-    entropy than without it."""
-    from components.losses.opacity import opacity_entropy
-
-    ends = []
-    for weight in ("0", "1"):
-        cfg = _config(hazy_scene, tmp_path / weight, device, "--pipeline.lambda-opacity-entropy", weight,
-                      "--pipeline.densify.refine-every", "1000", steps=30)  # fmt: skip
-        ends.append(float(opacity_entropy(_train(cfg).pipeline.model.opacities)))
-    assert ends[1] < ends[0] - 0.01, ends
