@@ -75,7 +75,8 @@ HOLDOUT = SceneSet(
 )
 """Out-of-sample check: the layout and haze pairs the benchmark does not hold, another generator
 seed, td-synth's default size (160x120, 32 views). Nothing is tuned on it; a change that holds on
-the benchmark but not here is fitted to the benchmark's scenes (about 2x a benchmark run's time)."""
+the benchmark but not here is fitted to the benchmark's scenes (a tri-dehaze run: about 1.2x a
+benchmark run's time)."""
 SCENE_SETS = {s.name: s for s in (BENCHMARK, HOLDOUT)}
 SCENES = BENCHMARK.scenes
 """The benchmark's (layout, haze preset) pairs."""

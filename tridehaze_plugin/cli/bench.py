@@ -299,7 +299,7 @@ class RestorationArgs:
     scene_set: Literal["benchmark", "holdout"] = "benchmark"
     """Which generated set: ``benchmark`` (the one the targets are measured on: 8 scenes, 96x72, 24
     views) or ``holdout`` (8 other layout and haze pairs from another seed at 160x120, 32 views: an
-    out-of-sample check of a change chosen on the benchmark, about 2x its time)."""
+    out-of-sample check of a change chosen on the benchmark, about 1.2x its time)."""
     output_dir: Path = Path("restoration")
     """Folder for seed<N>/{runs,results}/ and restoration.{md,json,csv}."""
     seeds: Annotated[list[int], SEED_RANGE] = field(default_factory=lambda: [42, 7])
