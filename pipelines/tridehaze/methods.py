@@ -143,7 +143,6 @@ def tri_dehaze_fast() -> TrainerConfig:
         medium=dict(backend="auto", resolution=32),
         composite=dict(num_samples=8, coarse_rays=300),
         freeze_fraction=0.2,  # docs/results/medium_recovery.md, session 12: cheaper and not worse at 1000 steps
-        lambda_dcp_isotropic=0.0,  # the medium freezes (step 200) before the light's decision (250): off
     )  # fmt: skip
 
 
