@@ -120,10 +120,6 @@ class Targets:
 TARGETS = Targets()
 
 
-def scene_names(scene_set: SceneSet = BENCHMARK) -> list[str]:
-    return scene_set.names()
-
-
 def is_dataset(path: Path) -> bool:
     """A scene folder the runner can train on (td-synth / nerfstudio layout)."""
     return (path / "transforms.json").is_file()
@@ -144,8 +140,8 @@ def build(
     ``unknown_scenes``). Without ``names``: the generated set only, so the targets keep their
     meaning."""
     paths = []
-    for layout, haze in scene_set.scenes:
-        path = root / f"{layout}-{haze}"
+    for (layout, haze), name in zip(scene_set.scenes, scene_set.names(), strict=True):
+        path = root / name
         if names and path.name not in names:
             continue
         if not is_dataset(path):
@@ -158,7 +154,7 @@ def build(
                     num_views=scene_set.num_views,
                     width=scene_set.width,
                     height=scene_set.height,
-                )  # fmt: skip
+                )
             )
             log(f"generated {path.name}")
         paths.append(path)
