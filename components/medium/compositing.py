@@ -43,6 +43,10 @@ OPEN_SKY_COVERAGE = 0.5
 sky share of better covered pixels continues from their own ray's end with its last light (exact
 in a homogeneous medium). Marching every not-quite-opaque pixel to the far bound spread its 16
 samples over the whole box and cost courtyard-patchy 2.2 dB of reconstruction."""
+MIN_FILL_PIXELS = 20
+MIN_FILL_SHARE = 0.002
+"""``farthest-seen`` needs at least this many (and this share of) a view's pixels just above the
+fade to average; fewer say too little about the view's far surfaces, and the haze light is kept."""
 
 
 @dataclass
@@ -94,6 +98,15 @@ class CompositeConfig:
     photos hold almost none of its clean colour (sky and far background in dense haze) shows the
     haze light rather than whatever colour the optimiser left there. Rendering only (the clean,
     not the composite, and never in training); 0: off."""
+    clean_fill: Literal["haze-light", "farthest-seen", "auto"] = "haze-light"
+    """What ``clean_t0`` fades to. ``haze-light``: the light along the ray (the dark channel's
+    J = A, right for sky). ``farthest-seen``: the view's mean clean colour over the pixels just
+    above the fade, T in [t0, 2 t0): the farthest surfaces the photos still see, standing in for
+    the walls dense haze hides behind them (falls back to the haze light in a view with too few
+    such pixels). ``auto``: ``farthest-seen`` where the run judged its medium's light one light
+    (``--pipeline.lambda-dcp-isotropic``'s decision: no sky in view), else the haze light. On
+    re-rendered runs (docs/results/medium_recovery.md, session 32) the farthest surfaces gain
+    3-5 dB on dense haze around walls and lose 3-7 dB on open sky."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -142,16 +155,22 @@ class MediumRender:
             return clean
         return clean + (1.0 - self.coverage) * self.sky
 
-    def faded_clean(self, clean: Tensor, t0: float) -> Tensor:
-        """``clean`` [H, W, 3] blended to the pixel's mean haze light S / (1 - T) by T / t0 where
-        T < t0. With I = J*T + S and S = A*(1 - T), this is exactly the clamped inversion
-        (I - A) / max(T, t0) + A of the model's own composite."""
+    def faded_clean(self, clean: Tensor, t0: float, fill: str = "haze-light") -> Tensor:
+        """``clean`` [H, W, 3] blended by T / t0 where T < t0 to the pixel's mean haze light
+        S / (1 - T) (``fill`` haze-light) or to the farthest seen surfaces' mean colour
+        (``farthest-seen``, see ``CompositeConfig.clean_fill``). With I = J*T + S and
+        S = A*(1 - T), the haze-light fade is exactly the clamped inversion (I - A) / max(T, t0) + A
+        of the model's own composite."""
         if t0 <= 0.0:
             return clean
         T = self.pixel_transmittance()  # [H, W, 1]
-        light = self.ray_light(1.0 - t0)  # [H, W, 3]
+        target = self.ray_light(1.0 - t0)  # [H, W, 3]
+        if fill == "farthest-seen":
+            band = ((T >= t0) & (T < 2.0 * t0))[..., 0]  # [H, W]
+            if int(band.sum()) >= max(MIN_FILL_PIXELS, MIN_FILL_SHARE * band.numel()):
+                target = clean[band].mean(dim=0).expand_as(clean)  # [H, W, 3]
         w = T / T.clamp_min(t0)  # [H, W, 1]: 1 where T >= t0
-        return w * clean + (1.0 - w) * light
+        return w * clean + (1.0 - w) * target
 
 
 def _normalised_coords(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
@@ -320,10 +339,14 @@ class MediumCompositor:
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
         return self.with_sky(surface, alpha, sky)
 
-    def clean_view(self, med: MediumRender, clean: Tensor) -> Tensor:
+    def clean_view(self, med: MediumRender, clean: Tensor, one_light: bool = False) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and
-        faded to the haze light where the photos cannot see it (``clean_t0``)."""
-        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0)
+        faded where the photos cannot see it (``clean_t0``, to ``clean_fill``); ``one_light``: the
+        run judged its medium's light the same along every ray (``clean_fill`` auto)."""
+        fill = self.config.clean_fill
+        if fill == "auto":
+            fill = "farthest-seen" if one_light else "haze-light"
+        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0, fill)
 
     def shows_sky(self) -> bool:
         """Whether the clean render shows the haze light where nothing covers a pixel."""

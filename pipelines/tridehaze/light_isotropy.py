@@ -68,6 +68,11 @@ class LightIsotropy(nn.Module):
             self._strong = 0.0 <= float(self.decided) < self.threshold
         return self.strong if self._strong else self.weak
 
+    def judged_one_light(self) -> bool:
+        """Whether the run has decided that its medium's light is one light (false before the
+        decision, without one, and where the isotropic weight is off)."""
+        return self.enabled and 0.0 <= float(self.decided) < self.threshold
+
     def _decide(self, step: int) -> None:
         n, s, ss = (float(v) for v in self.sums)
         cv = None

@@ -64,7 +64,9 @@ def tri_dehaze() -> TrainerConfig:
     Gaussians' colours, and SH order 1 cannot hold a sun's forward-scattering glow (session 23).
     ``lambda_dcp_isotropic`` raises the dark channel's weight from 0.1 to 1 at a quarter of the run
     where that light has proved the same along every ray: nothing then pins the light's brightness
-    but the bound, and the medium would end too dense (session 30).
+    but the bound, and the medium would end too dense (session 30). In such a run the fade
+    (``composite.clean_fill`` auto) goes to the farthest seen surfaces' colour rather than the haze
+    light: with no sky in view, what dense haze hides is more wall (session 32).
     """
     paper = _paper_pipeline()
     pipeline = replace(
@@ -73,7 +75,7 @@ def tri_dehaze() -> TrainerConfig:
         dcp_bound="lower-own-light",
         freeze_fraction=0.5,
         lambda_depth_metric=0.05,
-        composite=replace(paper.composite, depth_gradient=True, clean_t0=0.15),
+        composite=replace(paper.composite, depth_gradient=True, clean_t0=0.15, clean_fill="auto"),
         medium=replace(paper.medium, light_space="global", light="mlp"),
         lambda_dcp_isotropic=1.0,
     )

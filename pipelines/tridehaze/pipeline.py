@@ -539,7 +539,7 @@ class GaussianPipeline(Pipeline):
             surface = self._surface_colour(clean, out, med, self.background)
             T, S = med.pixel_transmittance(), med.scattering
             hazy = composite(surface if med.at_infinity else clean, med)
-            clean = self.compositor.clean_view(med, surface)
+            clean = self.compositor.clean_view(med, surface, self.light_isotropy.judged_one_light())
         return {
             "clean": clean.clamp(0, 1),
             "hazy": hazy.clamp(0, 1),

@@ -123,12 +123,12 @@ def test_overrides_reach_nested_configs():
 def test_paper_preset_is_the_papers_schedule():
     """method.md: 15k steps, the medium frozen (Stage II) at 3000, the dark channel as a two-sided
     target on a black background; tri-dehaze departs from it in exactly the measured settings
-    (sessions 8-12, 19, 23 and 30 of docs/results/medium_recovery.md)."""
+    (sessions 8-12, 19, 23, 30 and 32 of docs/results/medium_recovery.md)."""
     paper, default = parse_args(["tri-dehaze-paper"]), parse_args(["tri-dehaze"])
     assert paper.max_steps == 15_000 and default.max_steps == 3000
     assert scaled_step(paper.pipeline.freeze_step, paper.pipeline.freeze_fraction, paper.max_steps) == 3000
     assert (paper.pipeline.random_background, paper.pipeline.dcp_bound) == (False, "two-sided")
-    composite = replace(paper.pipeline.composite, depth_gradient=True, clean_t0=0.15)
+    composite = replace(paper.pipeline.composite, depth_gradient=True, clean_t0=0.15, clean_fill="auto")
     measured = {
         "random_background": True,
         "dcp_bound": "lower-own-light",

@@ -11,7 +11,13 @@ import torch
 
 from components.data.cameras import Cameras
 from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumSample
-from components.medium.compositing import CompositeConfig, MediumCompositor, composite, homogeneous_along_rays
+from components.medium.compositing import (
+    CompositeConfig,
+    MediumCompositor,
+    MediumRender,
+    composite,
+    homogeneous_along_rays,
+)
 
 H, W = 24, 32
 
@@ -322,6 +328,40 @@ def test_clean_t0_is_the_clamped_inversion_of_the_models_own_composite(device):
     assert float((shown[opaque] - 0.6).abs().max()) < 0.01
     off = MediumCompositor(CompositeConfig(ray_stride=1, num_samples=8))
     torch.testing.assert_close(off.clean_view(ref, clean), clean)
+
+
+def test_clean_fill_farthest_seen_fades_to_the_mean_of_the_band_just_above_t0(device):
+    """``farthest-seen``: below t0 the shown colour goes to the mean clean colour of the pixels
+    with T in [t0, 2 t0) (the same ramp as the haze-light fade); above t0 nothing changes; a view
+    with too few such pixels keeps the haze light; ``auto`` follows the one-light verdict."""
+    H, W, t0 = 20, 30, 0.1
+    T = torch.linspace(0.01, 0.9, H * W, device=device).reshape(H, W, 1)  # every regime
+    light = 0.6
+    med = MediumRender(T, light * (1.0 - T).expand(H, W, 3), torch.ones_like(T))
+    clean = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(1)).to(device)
+    band = ((T >= t0) & (T < 2 * t0))[..., 0]
+    assert int(band.sum()) > 20
+    fill = clean[band].mean(dim=0)  # [3]
+    w = T / T.clamp_min(t0)
+    expected = w * clean + (1 - w) * fill
+    comp = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="farthest-seen"))
+    shown = comp.clean_view(med, clean)
+    torch.testing.assert_close(shown, expected)
+    kept = (T >= t0).expand_as(clean)
+    torch.testing.assert_close(shown[kept], clean[kept])
+    # auto: the fill where the run judged its light one light, the haze light elsewhere
+    auto = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="auto"))
+    torch.testing.assert_close(auto.clean_view(med, clean, one_light=True), expected)
+    haze = MediumCompositor(CompositeConfig(clean_t0=t0)).clean_view(med, clean)
+    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False), haze)
+    assert float((haze - expected).abs().max()) > 0.1  # the two fills differ here
+    # a view with no pixel just above t0 (all opaque haze or all clear) keeps the haze light
+    gap = torch.where(T < t0, T, T.clamp_min(2 * t0))  # [H, W, 1]: the band emptied
+    med_gap = MediumRender(gap, light * (1.0 - gap).expand(H, W, 3), torch.ones_like(gap))
+    torch.testing.assert_close(
+        comp.clean_view(med_gap, clean),
+        MediumCompositor(CompositeConfig(clean_t0=t0)).clean_view(med_gap, clean),
+    )
 
 
 class _InputsField(AnalyticField):

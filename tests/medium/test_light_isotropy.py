@@ -42,6 +42,22 @@ def test_an_even_light_gets_the_strong_weight_from_the_decision_step():
     assert "one light" in iso.decisions[0].message and "weight 1 from step 10" in iso.decisions[0].message
 
 
+def test_judged_one_light_only_after_an_even_verdict():
+    """The clean render's fade (``composite.clean_fill`` auto) reads this verdict."""
+    even = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    light = torch.full((8, 8), 0.7)
+    _run(light, range(4), even)
+    assert not even.judged_one_light()  # not decided before the decision step
+    _run(light, range(4, 6), even)
+    assert even.judged_one_light()
+    spread = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
+    _run(torch.linspace(0.5, 0.9, 64).reshape(8, 8), range(6), spread)
+    assert not spread.judged_one_light()
+    off = LightIsotropy(weak=0.1, strong=0.0, threshold=0.065, window=(0, 4))
+    _run(light, range(6), off)
+    assert not off.judged_one_light()
+
+
 def test_a_light_that_varies_by_direction_keeps_the_weak_weight():
     iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     light = torch.linspace(0.5, 0.9, 64).reshape(8, 8)  # cv ~0.17, a sun on one side
