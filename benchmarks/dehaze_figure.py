@@ -4,7 +4,8 @@ haze-free reference | the last run's transmittance, one row per scene (first tes
     python benchmarks/dehaze_figure.py --runs RUN_A/config.yml RUN_B/config.yml ... --output docs/images/x.png
 
 Runs are grouped by scene (their dataset folder) and labelled by method; the restoration PSNR
-of the shown view is printed on each clean render.
+of the shown view is printed on each clean render. ``--clean-fill haze-light farthest-seen``
+renders each run once per ``--pipeline.composite.clean-fill`` (rendering only), labelled by it.
 """
 
 from __future__ import annotations
@@ -42,6 +43,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=Path, nargs="+", required=True)
     ap.add_argument("--output", type=Path, required=True)
+    ap.add_argument(
+        "--clean-fill", nargs="+", default=[], choices=["haze-light", "farthest-seen", "auto"],
+        help="render each run with each of these fills of the clean render's fade (default: the run's own)",
+    )  # fmt: skip
     args = ap.parse_args()
     import cv2
 
@@ -58,8 +63,13 @@ def main() -> None:
         tiles = [("hazy input", _u8(dm.image(idx)), float(psnr(dm.image(idx), clean_ref)))]
         T = None
         for run in runs:
-            out = run.pipeline.render(run.datamanager.camera(idx))
-            tiles.append((run.config.method_name, _u8(out["clean"]), float(psnr(out["clean"], clean_ref))))
+            for fill in args.clean_fill or [None]:
+                label = run.config.method_name
+                if fill is not None:
+                    run.pipeline.compositor.config.clean_fill = fill
+                    label = f"{label} ({fill})"
+                out = run.pipeline.render(run.datamanager.camera(idx))
+                tiles.append((label, _u8(out["clean"]), float(psnr(out["clean"], clean_ref))))
             if run.pipeline.medium.has_medium:
                 T = out["transmittance"]
         tiles.append((f"clean: {Path(scene).name}", _u8(clean_ref), None))

@@ -4,10 +4,13 @@ farthest seen surfaces, and the one its one-light verdict picks."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
+import cv2
 import numpy as np
 
-from tests.eval.diagnosis_script import run_diagnosis
+from tests.eval.diagnosis_script import REPO, run_diagnosis
 from tests.export.tiny_run import train_tiny
 from tests.tiny_scenes import tiny_hazy_scene
 
@@ -38,3 +41,12 @@ def test_auto_follows_each_runs_verdict_and_the_fills_differ(tmp_path):
         assert abs(row["unobserved_share"] - float((true_t < 0.05).mean())) < 1e-6
     assert "| run | scene | seed | light spread" in out.with_suffix(".md").read_text()
     assert out.with_suffix(".png").stat().st_size > 0
+
+    # the figure renders a run once per fill: hazy | one tile per fill | reference | T, each 2x
+    fig = tmp_path / "fill.png"
+    cmd = [sys.executable, str(REPO / "benchmarks" / "dehaze_figure.py"), "--runs", str(configs["one"])]
+    cmd += ["--output", str(fig), "--clean-fill", "haze-light", "farthest-seen"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "(haze-light)" in proc.stdout and "(farthest-seen)" in proc.stdout
+    assert cv2.imread(str(fig)).shape[1] == 5 * 2 * 40
