@@ -4,9 +4,10 @@ For each trained run, every test view with a haze-free reference is rendered wit
 ``--pipeline.composite.clean-fill`` ``haze-light`` and ``farthest-seen`` (rendering only: the
 Gaussians, the medium and the composite are the run's), at the run's own ``clean-t0``; ``auto``
 is whichever of the two the run's one-light verdict picks (``--pipeline.lambda-dcp-isotropic``).
-Restoration PSNR over all pixels of the test views together and, where the dataset has true
-transmittance maps, over the pixels whose clean colour does not reach the camera (true T under
-0.05: sky, or walls behind dense haze), where the fill is all there is.
+Restoration PSNR of the whole picture as ``td-bench restoration`` reports it (the mean over the
+test views of each view's PSNR) and, where the dataset has true transmittance maps, over the
+pixels whose clean colour does not reach the camera (true T under 0.05: sky, or walls behind
+dense haze; all test views' such pixels together), where the fill is all there is.
 
     python benchmarks/clean_fill.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
 
@@ -41,6 +42,7 @@ def diagnose(config: Path) -> dict:
     composite = pipe.compositor.config
     one_light = pipe.light_isotropy.judged_one_light()
     sums = {fill: {k: [0.0, 0] for k in REGIONS} for fill in FILLS}
+    views: dict[str, list[float]] = {fill: [] for fill in FILLS}  # each view's whole-picture PSNR
     for idx in dm.test_indices:
         reference = dm.clean_image(idx)  # [H, W, 3]
         if reference is None:
@@ -52,10 +54,18 @@ def diagnose(config: Path) -> dict:
         for fill in FILLS:
             composite.clean_fill = fill
             clean = pipe.render(dm.camera(idx))["clean"]  # [H, W, 3]
-            accumulate(sums[fill], masked_sums(clean, reference, {"all": everything, "unobserved": hidden}))
-    if sums[FILLS[0]]["all"][1] == 0:
+            view = masked_sums(clean, reference, {"all": everything, "unobserved": hidden})
+            accumulate(sums[fill], view)
+            views[fill].append(psnr_of(view["all"]))
+    if not views[FILLS[0]]:
         raise SystemExit(f"{config}: no test view has a haze-free reference")
-    psnr = {fill: {k: psnr_of(tuple(v)) for k, v in s.items()} for fill, s in sums.items()}
+    psnr = {
+        fill: {
+            "all": sum(views[fill]) / len(views[fill]),
+            "unobserved": psnr_of(tuple(sums[fill]["unobserved"])),
+        }
+        for fill in FILLS
+    }
     psnr["auto"] = psnr["farthest-seen" if one_light else "haze-light"]
     return {
         "run": str(config.parent),
