@@ -104,9 +104,9 @@ class CompositeConfig:
     above the fade, T in [t0, 2 t0): the farthest surfaces the photos still see, standing in for
     the walls dense haze hides behind them (falls back to the haze light in a view with too few
     such pixels). ``auto``: ``farthest-seen`` where the run judged its medium's light one light
-    (``--pipeline.lambda-dcp-isotropic``'s decision: no sky in view), else the haze light. On
-    re-rendered runs (docs/results/medium_recovery.md, session 32) the farthest surfaces gain
-    3-5 dB on dense haze around walls and lose 3-7 dB on open sky."""
+    (``--pipeline.lambda-dcp-isotropic``'s decision; on every scene measured, one without open
+    sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md, session 32)
+    the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7 dB on open sky."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -155,7 +155,9 @@ class MediumRender:
             return clean
         return clean + (1.0 - self.coverage) * self.sky
 
-    def faded_clean(self, clean: Tensor, t0: float, fill: str = "haze-light") -> Tensor:
+    def faded_clean(
+        self, clean: Tensor, t0: float, fill: Literal["haze-light", "farthest-seen"] = "haze-light"
+    ) -> Tensor:
         """``clean`` [H, W, 3] blended by T / t0 where T < t0 to the pixel's mean haze light
         S / (1 - T) (``fill`` haze-light) or to the farthest seen surfaces' mean colour
         (``farthest-seen``, see ``CompositeConfig.clean_fill``). With I = J*T + S and
