@@ -73,7 +73,7 @@ def diagnose(config: Path) -> dict:
         "seed": run.config.seed,
         "clean_t0": composite.clean_t0,
         "one_light": one_light,
-        "light_cv": float(pipe.light_isotropy.decided) if float(pipe.light_isotropy.decided) >= 0 else None,
+        "light_cv": pipe.light_isotropy.measured_cv(),
         "unobserved_share": sums[FILLS[0]]["unobserved"][1] / sums[FILLS[0]]["all"][1],
         "psnr": psnr,
     }

@@ -65,13 +65,20 @@ class LightIsotropy(nn.Module):
         if self._strong is None:
             if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = 0.0 <= float(self.decided) < self.threshold
+            self._strong = self.judged_one_light()
         return self.strong if self._strong else self.weak
+
+    def measured_cv(self) -> float | None:
+        """The light's spread the decision was made on; None before the decision or where no
+        pixel had enough haze to measure it."""
+        cv = float(self.decided)
+        return cv if cv >= 0.0 else None
 
     def judged_one_light(self) -> bool:
         """Whether the run has decided that its medium's light is one light (false before the
         decision, without one, and where the isotropic weight is off)."""
-        return self.enabled and 0.0 <= float(self.decided) < self.threshold
+        cv = self.measured_cv()
+        return self.enabled and cv is not None and cv < self.threshold
 
     def _decide(self, step: int) -> None:
         n, s, ss = (float(v) for v in self.sums)

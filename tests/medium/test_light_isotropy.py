@@ -47,9 +47,9 @@ def test_judged_one_light_only_after_an_even_verdict():
     even = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     light = torch.full((8, 8), 0.7)
     _run(light, range(4), even)
-    assert not even.judged_one_light()  # not decided before the decision step
+    assert not even.judged_one_light() and even.measured_cv() is None  # not decided before the decision step
     _run(light, range(4, 6), even)
-    assert even.judged_one_light()
+    assert even.judged_one_light() and even.measured_cv() == pytest.approx(0.0, abs=1e-6)
     spread = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     _run(torch.linspace(0.5, 0.9, 64).reshape(8, 8), range(6), spread)
     assert not spread.judged_one_light()
