@@ -1,9 +1,10 @@
 """What the clean render's fade below t0 should go to: the haze light or the farthest seen surfaces.
 
 For each trained run, every test view with a haze-free reference is rendered with
-``--pipeline.composite.clean-fill`` ``haze-light`` and ``farthest-seen`` (rendering only: the
-Gaussians, the medium and the composite are the run's), at the run's own ``clean-t0``; ``auto``
-is whichever of the two the run's one-light verdict picks (``--pipeline.lambda-dcp-isotropic``).
+``--pipeline.composite.clean-fill`` ``haze-light``, ``farthest-seen`` and ``farthest-ground``
+(rendering only: the Gaussians, the medium and the composite are the run's), at the run's own
+``clean-t0``; ``auto`` is whichever the run's one-light verdict picks
+(``--pipeline.lambda-dcp-isotropic``).
 Restoration PSNR of the whole picture as ``td-bench restoration`` reports it (the mean over the
 test views of each view's PSNR) and, where the dataset has true transmittance maps, over the
 pixels whose clean colour does not reach the camera (true T under 0.05: sky, or walls behind
@@ -32,7 +33,7 @@ from pipelines.engine.medium_recovery import OBSERVABLE_T, REFERENCE_T_KEY, refe
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.experiments.tables import fmt_number  # noqa: E402
 
-FILLS = ("haze-light", "farthest-seen")
+FILLS = ("haze-light", "farthest-seen", "farthest-ground")
 REGIONS = ("all", "unobserved")
 
 
@@ -66,7 +67,8 @@ def diagnose(config: Path) -> dict:
         }
         for fill in FILLS
     }
-    psnr["auto"] = psnr["farthest-seen" if one_light else "haze-light"]
+    composite.clean_fill = "auto"
+    psnr["auto"] = psnr[pipe.compositor.fill(one_light)]
     return {
         "run": str(config.parent),
         "scene": Path(str(run.config.dataset.data)).name,
@@ -82,7 +84,7 @@ def diagnose(config: Path) -> dict:
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | light spread | one light | unobserved share | PSNR haze-light / farthest-seen "
-        "(unobserved pixels) | auto | auto - haze-light |",
+        "/ farthest-ground (unobserved pixels) | auto | auto - haze-light |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:

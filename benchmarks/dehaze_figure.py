@@ -44,7 +44,7 @@ def main() -> None:
     ap.add_argument("--runs", type=Path, nargs="+", required=True)
     ap.add_argument("--output", type=Path, required=True)
     ap.add_argument(
-        "--clean-fill", nargs="+", default=[], choices=["haze-light", "farthest-seen", "auto"],
+        "--clean-fill", nargs="+", default=[], choices=["haze-light", "farthest-seen", "farthest-ground", "auto"],
         help="render each run with each of these fills of the clean render's fade (default: the run's own)",
     )  # fmt: skip
     args = ap.parse_args()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -137,3 +138,23 @@ class Cameras:
 
 
 _FIELDS = ("camtoworlds", "fx", "fy", "cx", "cy", "width", "height")
+
+
+def scene_up(c2w: np.ndarray) -> np.ndarray:
+    """The scene's up direction, unit length.
+
+    The cameras' mean up (minus their image y axis) is biased towards the scene when they look
+    down at it from one side; when the centres spread in a plane (an arc or ring around the scene),
+    that plane's normal, signed like the mean up, is used instead (it is exact for a ring).
+    """
+    up = -c2w[:, :3, 1].mean(axis=0)
+    n = np.linalg.norm(up)
+    up = up / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
+    centers = c2w[:, :3, 3]
+    if len(centers) >= 3:
+        _, sv, vt = np.linalg.svd(centers - centers.mean(0), full_matrices=False)
+        normal = vt[2]
+        planar = sv[1] > 1e-9 and sv[2] < 0.3 * sv[1]
+        if planar and abs(normal @ up) > math.cos(math.radians(45)):
+            return normal if normal @ up > 0 else -normal
+    return up

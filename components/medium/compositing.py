@@ -98,15 +98,20 @@ class CompositeConfig:
     photos hold almost none of its clean colour (sky and far background in dense haze) shows the
     haze light rather than whatever colour the optimiser left there. Rendering only (the clean,
     not the composite, and never in training); 0: off."""
-    clean_fill: Literal["haze-light", "farthest-seen", "auto"] = "haze-light"
+    clean_fill: Literal["haze-light", "farthest-seen", "farthest-ground", "auto"] = "haze-light"
     """What ``clean_t0`` fades to. ``haze-light``: the light along the ray (the dark channel's
     J = A, right for sky). ``farthest-seen``: the view's mean clean colour over the pixels just
     above the fade, T in [t0, 2 t0): the farthest surfaces the photos still see, standing in for
     the walls dense haze hides behind them (falls back to the haze light in a view with too few
-    such pixels). ``auto``: ``farthest-seen`` where the run judged its medium's light one light
+    such pixels). ``farthest-ground``: the haze light above the horizon and, on rays that point
+    below it (the scene's up from the training cameras), the mean clean colour of such pixels
+    just above the fade: the ground runs on under the haze where the sky cannot be. ``auto``:
+    ``farthest-seen`` where the run judged its medium's light one light
     (``--pipeline.lambda-dcp-isotropic``'s decision; on every scene measured, one without open
-    sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md, session 32)
-    the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7 dB on open sky."""
+    sky), else ``farthest-ground``. On re-rendered runs (docs/results/medium_recovery.md, sessions
+    32 and 33) the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7 dB on
+    open sky; below the horizon the farthest ground gains 0.4-2.7 dB on fields and rooms under
+    open sky's verdict and loses 0.5-0.8 dB on thin patchy haze over a field."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -156,23 +161,41 @@ class MediumRender:
         return clean + (1.0 - self.coverage) * self.sky
 
     def faded_clean(
-        self, clean: Tensor, t0: float, fill: Literal["haze-light", "farthest-seen"] = "haze-light"
+        self,
+        clean: Tensor,
+        t0: float,
+        fill: Literal["haze-light", "farthest-seen", "farthest-ground"] = "haze-light",
+        below_horizon: Tensor | None = None,
     ) -> Tensor:
         """``clean`` [H, W, 3] blended by T / t0 where T < t0 to the pixel's mean haze light
         S / (1 - T) (``fill`` haze-light) or to the farthest seen surfaces' mean colour
-        (``farthest-seen``, see ``CompositeConfig.clean_fill``). With I = J*T + S and
-        S = A*(1 - T), the haze-light fade is exactly the clamped inversion (I - A) / max(T, t0) + A
-        of the model's own composite."""
+        (``farthest-seen``; ``farthest-ground``: below the horizon only, ``below_horizon`` [H, W]
+        bool, see ``CompositeConfig.clean_fill``). With I = J*T + S and S = A*(1 - T), the
+        haze-light fade is exactly the clamped inversion (I - A) / max(T, t0) + A of the model's
+        own composite."""
         if t0 <= 0.0:
             return clean
         T = self.pixel_transmittance()  # [H, W, 1]
         target = self.ray_light(1.0 - t0)  # [H, W, 3]
-        if fill == "farthest-seen":
-            band = ((T >= t0) & (T < 2.0 * t0))[..., 0]  # [H, W]
-            if int(band.sum()) >= max(MIN_FILL_PIXELS, MIN_FILL_SHARE * band.numel()):
-                target = clean[band].mean(dim=0).expand_as(clean)  # [H, W, 3]
+        band = ((T >= t0) & (T < 2.0 * t0))[..., 0]  # [H, W]: the farthest surfaces still seen
+        if fill == "farthest-seen" and _enough(band):
+            target = clean[band].mean(dim=0).expand_as(clean)  # [H, W, 3]
+        elif fill == "farthest-ground" and below_horizon is not None and _enough(band & below_horizon):
+            ground = clean[band & below_horizon].mean(dim=0)  # [3]
+            target = torch.where(below_horizon[..., None], ground, target)  # [H, W, 3]
         w = T / T.clamp_min(t0)  # [H, W, 1]: 1 where T >= t0
         return w * clean + (1.0 - w) * target
+
+
+def _enough(band: Tensor) -> bool:
+    """Whether a fill's band [H, W] has the pixels to average (else the haze light stays)."""
+    return int(band.sum()) >= max(MIN_FILL_PIXELS, MIN_FILL_SHARE * band.numel())
+
+
+def below_horizon(cam: Cameras, H: int, W: int, up: Tensor) -> Tensor:  # noqa: N803
+    """[H, W] bool: pixel rays pointing below the horizontal plane of the unit ``up`` [3]."""
+    dirs, _ = pixel_rays(cam, H, W, up.device, up.dtype)  # [H, W, 3]
+    return (dirs @ up) < 0.0
 
 
 def _normalised_coords(cam: Cameras, xs: Tensor, ys: Tensor) -> tuple[Tensor, Tensor]:
@@ -341,14 +364,21 @@ class MediumCompositor:
         sky = (S_f + torch.exp(-tau_f)[:, None] * L_last).reshape(H, W, 3)
         return self.with_sky(surface, alpha, sky)
 
-    def clean_view(self, med: MediumRender, clean: Tensor, one_light: bool = False) -> Tensor:
+    def clean_view(
+        self, med: MediumRender, clean: Tensor, one_light: bool = False, below: Tensor | None = None
+    ) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and
         faded where the photos cannot see it (``clean_t0``, to ``clean_fill``); ``one_light``: the
-        run judged its medium's light the same along every ray (``clean_fill`` auto)."""
+        run judged its medium's light the same along every ray (``clean_fill`` auto); ``below``
+        [H, W] bool: the rays below the horizon (:func:`below_horizon`; ``farthest-ground``)."""
+        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0, self.fill(one_light), below)
+
+    def fill(self, one_light: bool) -> Literal["haze-light", "farthest-seen", "farthest-ground"]:
+        """The fade's target ``clean_fill`` resolves to for a run with this light verdict."""
         fill = self.config.clean_fill
         if fill == "auto":
-            fill = "farthest-seen" if one_light else "haze-light"
-        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0, fill)
+            return "farthest-seen" if one_light else "farthest-ground"
+        return fill
 
     def shows_sky(self) -> bool:
         """Whether the clean render shows the haze light where nothing covers a pixel."""

@@ -15,7 +15,7 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
-from components.data.cameras import Cameras
+from components.data.cameras import Cameras, scene_up
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
@@ -26,6 +26,7 @@ from components.medium.compositing import (
     CompositeConfig,
     MediumCompositor,
     MediumRender,
+    below_horizon,
     composite,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
@@ -272,6 +273,8 @@ class GaussianPipeline(Pipeline):
         self.policy = REGISTRY.get("gradient_policy", config.gradient_policy)(config.t_min)
         self.compositor = MediumCompositor(config.composite)
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
+        train_c2w = scene.cameras.camtoworlds[list(datamanager.train_indices)].detach().double().cpu().numpy()
+        self.scene_up = torch.from_numpy(scene_up(train_c2w)).float()  # [3] for the clean render's fill
         self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
         self.medium.bind_scene(scene.root, scene.transform)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
@@ -539,7 +542,11 @@ class GaussianPipeline(Pipeline):
             surface = self._surface_colour(clean, out, med, self.background)
             T, S = med.pixel_transmittance(), med.scattering
             hazy = composite(surface if med.at_infinity else clean, med)
-            clean = self.compositor.clean_view(med, surface, self.light_isotropy.judged_one_light())
+            one_light = self.light_isotropy.judged_one_light()
+            below = None
+            if self.compositor.fill(one_light) == "farthest-ground":
+                below = below_horizon(camera, clean.shape[0], clean.shape[1], self.scene_up.to(clean))
+            clean = self.compositor.clean_view(med, surface, one_light, below)
         return {
             "clean": clean.clamp(0, 1),
             "hazy": hazy.clamp(0, 1),

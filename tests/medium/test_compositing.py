@@ -15,6 +15,7 @@ from components.medium.compositing import (
     CompositeConfig,
     MediumCompositor,
     MediumRender,
+    below_horizon,
     composite,
     homogeneous_along_rays,
 )
@@ -362,6 +363,56 @@ def test_clean_fill_farthest_seen_fades_to_the_mean_of_the_band_just_above_t0(de
         comp.clean_view(med_gap, clean),
         MediumCompositor(CompositeConfig(clean_t0=t0)).clean_view(med_gap, clean),
     )
+
+
+def test_clean_fill_farthest_ground_fills_below_the_horizon_only(device):
+    """``farthest-ground``: under t0, rays below the horizon fade to the mean clean colour of the
+    band just above t0 *below the horizon*; rays above it keep the haze light; nothing changes
+    where T >= t0; without the horizon mask, or with too few band pixels under the horizon, it is
+    the haze-light fade. ``auto`` picks it where the run did not judge its light one light."""
+    H, W, t0, light = 20, 30, 0.1, 0.6
+    T = torch.linspace(0.01, 0.9, H * W, device=device).reshape(W, H, 1).transpose(0, 1)  # varies along x
+    med = MediumRender(T, light * (1.0 - T).expand(H, W, 3), torch.ones_like(T))
+    clean = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(2)).to(device)
+    below = torch.zeros(H, W, dtype=torch.bool, device=device)
+    below[H // 2 :] = True  # the lower half of the image looks down
+    band = ((T >= t0) & (T < 2 * t0))[..., 0] & below
+    assert int(band.sum()) > 20
+    ground = clean[band].mean(dim=0)  # [3]
+    haze_light = MediumCompositor(CompositeConfig(clean_t0=t0)).clean_view(med, clean)
+    w = T / T.clamp_min(t0)
+    expected = torch.where(below[..., None], w * clean + (1 - w) * ground, haze_light)
+    comp = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="farthest-ground"))
+    shown = comp.clean_view(med, clean, below=below)
+    torch.testing.assert_close(shown, expected)
+    assert float((shown - haze_light).abs().max()) > 0.1  # the lower half's fade moved
+    kept = (T >= t0).expand_as(clean)
+    torch.testing.assert_close(shown[kept], clean[kept])
+    torch.testing.assert_close(comp.clean_view(med, clean), haze_light)  # no horizon: the haze light
+    few = torch.zeros_like(below)
+    few[-1, :3] = True  # three pixels under the horizon: too few to average
+    torch.testing.assert_close(comp.clean_view(med, clean, below=few), haze_light)
+    auto = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="auto"))
+    assert auto.fill(one_light=False) == "farthest-ground" and auto.fill(one_light=True) == "farthest-seen"
+    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False, below=below), expected)
+
+
+def test_below_horizon_splits_a_level_camera_at_its_principal_row(device):
+    """A level camera (image y down, world z up) sees the ground on the rows below its principal
+    point and the sky above; tilting the up vector to the opposite sign swaps the halves."""
+    H, W = 24, 32
+    c2w = torch.tensor(
+        [[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 1.5], [0, 0, 0, 1]]
+    )  # looks along +y, y-image down = -z
+    f = torch.tensor([30.0])
+    cam = Cameras(
+        c2w[None], f, f, torch.tensor([W / 2]), torch.tensor([H / 2]), torch.tensor([W]), torch.tensor([H])
+    ).to(device)
+    up = torch.tensor([0.0, 0.0, 1.0], device=device)
+    below = below_horizon(cam, H, W, up)  # [H, W]
+    assert below.shape == (H, W)
+    assert bool(below[H // 2 :].all()) and not bool(below[: H // 2].any())
+    assert torch.equal(below_horizon(cam, H, W, -up), ~below)
 
 
 class _InputsField(AnalyticField):

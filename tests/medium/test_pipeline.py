@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from components.medium.compositing import below_horizon
 from pipelines.engine.run_loader import load_run
 from pipelines.engine.trainer import Trainer, optimization_step
 from tests.tiny_scenes import tiny_hazy_scene
@@ -137,6 +138,35 @@ def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tm
     bounds = built[800].medium.bounds
     radius = (shell[len(plain) :] - bounds.center.to(shell)).norm(dim=-1)
     torch.testing.assert_close(radius, torch.full_like(radius, float(bounds.half_size.norm())))
+
+
+def test_farthest_ground_fill_changes_the_clean_render_below_the_horizon_only(hazy_scene, tmp_path, device):
+    """The pipeline finds the generated scene's up (world z, through the scene's normalisation)
+    from its training cameras, and ``clean-fill farthest-ground`` moves the clean render only on
+    rays below that horizon where T is under t0; the composite and T do not change."""
+    trainer = _train(_config(hazy_scene, tmp_path, device, "--pipeline.composite.clean-t0", "0.5"))
+    pipe = trainer.pipeline
+    world_up = pipe.datamanager.scene.transform.rotation[
+        :, 2
+    ].float()  # the original z axis, normalised frame
+    assert float(pipe.scene_up @ world_up) > 0.99
+    comp = pipe.compositor.config
+    seen_ground = False
+    for idx in pipe.datamanager.test_indices:
+        cam = pipe.datamanager.camera(idx)
+        comp.clean_fill = "haze-light"
+        ref = pipe.render(cam)
+        comp.clean_fill = "farthest-ground"
+        out = pipe.render(cam)
+        torch.testing.assert_close(out["hazy"], ref["hazy"])
+        torch.testing.assert_close(out["transmittance"], ref["transmittance"])
+        H, W = out["clean"].shape[:2]
+        below = below_horizon(cam, H, W, pipe.scene_up.to(device))  # [H, W]
+        moved = (out["clean"] - ref["clean"]).abs().amax(-1) > 1e-6  # [H, W]
+        assert not bool((moved & ~below).any())
+        assert not bool((moved & (ref["transmittance"][..., 0] >= 0.5)).any())
+        seen_ground = seen_ground or bool(moved.any())
+    assert seen_ground  # some test view has hazed ground under t0 for the fill to change
 
 
 def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
