@@ -100,18 +100,21 @@ class CompositeConfig:
     not the composite, and never in training); 0: off."""
     clean_fill: Literal["haze-light", "farthest-seen", "farthest-ground", "auto"] = "haze-light"
     """What ``clean_t0`` fades to. ``haze-light``: the light along the ray (the dark channel's
-    J = A, right for sky). ``farthest-seen``: the view's mean clean colour over the pixels just
-    above the fade, T in [t0, 2 t0): the farthest surfaces the photos still see, standing in for
-    the walls dense haze hides behind them (falls back to the haze light in a view with too few
-    such pixels). ``farthest-ground``: the haze light above the horizon and, on rays that point
-    below it (the scene's up from the training cameras), the mean clean colour of such pixels
-    just above the fade: the ground runs on under the haze where the sky cannot be. ``auto``:
-    ``farthest-seen`` where the run judged its medium's light one light
-    (``--pipeline.lambda-dcp-isotropic``'s decision; on every scene measured, one without open
-    sky), else ``farthest-ground``. On re-rendered runs (docs/results/medium_recovery.md, sessions
-    32 and 33) the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7 dB on
-    open sky; below the horizon the farthest ground gains 0.4-2.7 dB on fields and rooms under
-    open sky's verdict and loses 0.5-0.8 dB on thin patchy haze over a field."""
+    J = A, right for sky; with the fade's ramp it is the clamped inversion of the composite, which
+    also pulls a too dense medium's over-dehazed colours back). ``farthest-seen``: the view's mean
+    clean colour over the pixels just above the fade, T in [t0, 2 t0): the farthest surfaces the
+    photos still see, standing in for the walls dense haze hides behind them (falls back to the
+    haze light in a view with too few such pixels). ``farthest-ground``: the haze light above the
+    horizon and, on rays that point below it (the scene's up from the training cameras), the mean
+    clean colour of such pixels just above the fade: the ground runs on under the haze where the
+    sky cannot be; not in ``auto``, since where the medium is too dense rather than the ground
+    hidden it loses (statue). ``auto``: ``farthest-seen`` where the run judged its medium's light
+    one light (``--pipeline.lambda-dcp-isotropic``'s decision; on every scene measured, one
+    without open sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md,
+    sessions 32 and 33) the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7
+    dB on open sky; the farthest ground gains 0.3-2.8 dB on fields and rooms under the other
+    verdict, loses 0.03-0.22 dB on streets and 0.4-0.7 dB on thin patchy haze over a field, and
+    1.0-2.5 dB on the hazed statue, whose background medium is too dense."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
@@ -377,7 +380,7 @@ class MediumCompositor:
         """The fade's target ``clean_fill`` resolves to for a run with this light verdict."""
         fill = self.config.clean_fill
         if fill == "auto":
-            return "farthest-seen" if one_light else "farthest-ground"
+            return "farthest-seen" if one_light else "haze-light"
         return fill
 
     def shows_sky(self) -> bool:

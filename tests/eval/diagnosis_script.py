@@ -35,3 +35,23 @@ def load_benchmark(monkeypatch, name: str) -> ModuleType:
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def tiny_field_run(tmp_path: Path) -> tuple[Path, Path, float]:
+    """A tiny generated field under height fog (sky and ground in every view), a 4-step run on it,
+    and its test views' true sky share (true depth at 0.75 of the far bound or beyond)."""
+    import numpy as np
+
+    from tests.export.tiny_run import train_tiny
+    from tests.tiny_scenes import tiny_hazy_scene
+
+    scene = tiny_hazy_scene(
+        tmp_path / "scene", layout="field", haze="height", seed=2, num_views=6, width=40, height=30,
+        samples=16, num_points=300, test_every=3,
+    )  # fmt: skip
+    config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
+    meta = json.loads((scene / "synth_meta.json").read_text())
+    frames = json.loads((scene / "transforms.json").read_text())
+    test = [f for f in frames["frames"] if f["file_path"] in frames["test_filenames"]]
+    depth = np.stack([np.load(scene / f["gt_depth_file_path"]) for f in test])
+    return scene, config, float((depth >= 0.75 * meta["far_bound_m"]).mean())

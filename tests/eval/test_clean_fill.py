@@ -33,7 +33,7 @@ def test_auto_follows_each_runs_verdict_and_the_fills_differ(tmp_path):
     frames = json.loads((scene / "transforms.json").read_text())
     test = [f for f in frames["frames"] if f["file_path"] in frames["test_filenames"]]
     true_t = np.stack([np.load(scene / f["gt_transmittance_file_path"]) for f in test])
-    for name, one_light, picked in (("one", True, "farthest-seen"), ("spread", False, "farthest-ground")):
+    for name, one_light, picked in (("one", True, "farthest-seen"), ("spread", False, "haze-light")):
         row = rows[str(configs[name].parent)]
         assert row["one_light"] is one_light and row["clean_t0"] == 0.15
         assert row["psnr"]["auto"] == row["psnr"][picked]

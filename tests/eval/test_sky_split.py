@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import math
 
-import numpy as np
 import torch
 
-from tests.eval.diagnosis_script import load_benchmark, run_diagnosis
-from tests.export.tiny_run import train_tiny
-from tests.tiny_scenes import tiny_hazy_scene
+from tests.eval.diagnosis_script import load_benchmark, run_diagnosis, tiny_field_run
 
 
 def _module(monkeypatch):
@@ -37,19 +33,9 @@ def test_regions_add_up_and_psnr_of_known_errors(monkeypatch):
 
 def test_on_a_tiny_field_run(tmp_path):
     """The sky share is the true depth's, and the whole picture's error is the two regions' sum."""
-    scene = tiny_hazy_scene(
-        tmp_path / "scene", layout="field", haze="height", seed=2, num_views=6, width=40, height=30,
-        samples=16, num_points=300, test_every=3,
-    )  # fmt: skip
-    config = train_tiny(scene, tmp_path / "runs", "--device", "cpu", steps=4)
+    _, config, share = tiny_field_run(tmp_path)
     out = tmp_path / "sky"
     row = run_diagnosis("sky_split.py", [config], out)
-
-    meta = json.loads((scene / "synth_meta.json").read_text())
-    frames = json.loads((scene / "transforms.json").read_text())
-    test = [f for f in frames["frames"] if f["file_path"] in frames["test_filenames"]]
-    depth = np.stack([np.load(scene / f["gt_depth_file_path"]) for f in test])
-    share = float((depth >= 0.75 * meta["far_bound_m"]).mean())
     assert 0.05 < share < 0.95  # the field shows both
     assert math.isclose(row["sky_share"], share, abs_tol=1e-6)
     for key in ("t0=0", "t0=0.1"):

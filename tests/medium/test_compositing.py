@@ -369,7 +369,7 @@ def test_clean_fill_farthest_ground_fills_below_the_horizon_only(device):
     """``farthest-ground``: under t0, rays below the horizon fade to the mean clean colour of the
     band just above t0 *below the horizon*; rays above it keep the haze light; nothing changes
     where T >= t0; without the horizon mask, or with too few band pixels under the horizon, it is
-    the haze-light fade. ``auto`` picks it where the run did not judge its light one light."""
+    the haze-light fade. ``auto`` does not pick it."""
     H, W, t0, light = 20, 30, 0.1, 0.6
     T = torch.linspace(0.01, 0.9, H * W, device=device).reshape(W, H, 1).transpose(0, 1)  # varies along x
     med = MediumRender(T, light * (1.0 - T).expand(H, W, 3), torch.ones_like(T))
@@ -392,9 +392,9 @@ def test_clean_fill_farthest_ground_fills_below_the_horizon_only(device):
     few = torch.zeros_like(below)
     few[-1, :3] = True  # three pixels under the horizon: too few to average
     torch.testing.assert_close(comp.clean_view(med, clean, below=few), haze_light)
-    auto = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="auto"))
-    assert auto.fill(one_light=False) == "farthest-ground" and auto.fill(one_light=True) == "farthest-seen"
-    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False, below=below), expected)
+    auto = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="auto"))  # never farthest-ground
+    assert auto.fill(one_light=False) == "haze-light" and auto.fill(one_light=True) == "farthest-seen"
+    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False, below=below), haze_light)
 
 
 def test_below_horizon_splits_a_level_camera_at_its_principal_row(device):
