@@ -195,7 +195,7 @@ def _enough(band: Tensor) -> bool:
     return int(band.sum()) >= max(MIN_FILL_PIXELS, MIN_FILL_SHARE * band.numel())
 
 
-def below_horizon(cam: Cameras, H: int, W: int, up: Tensor) -> Tensor:  # noqa: N803
+def below_horizon(cam: Cameras, H: int, W: int, up: Tensor) -> Tensor:
     """[H, W] bool: pixel rays pointing below the horizontal plane of the unit ``up`` [3]."""
     dirs, _ = pixel_rays(cam, H, W, up.device, up.dtype)  # [H, W, 3]
     return (dirs @ up) < 0.0
