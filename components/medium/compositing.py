@@ -180,12 +180,13 @@ class MediumRender:
             return clean
         T = self.pixel_transmittance()  # [H, W, 1]
         target = self.ray_light(1.0 - t0)  # [H, W, 3]
-        band = ((T >= t0) & (T < 2.0 * t0))[..., 0]  # [H, W]: the farthest surfaces still seen
-        if fill == "farthest-seen" and _enough(band):
-            target = clean[band].mean(dim=0).expand_as(clean)  # [H, W, 3]
-        elif fill == "farthest-ground" and below_horizon is not None and _enough(band & below_horizon):
-            ground = clean[band & below_horizon].mean(dim=0)  # [3]
-            target = torch.where(below_horizon[..., None], ground, target)  # [H, W, 3]
+        if fill != "haze-light":
+            band = ((T >= t0) & (T < 2.0 * t0))[..., 0]  # [H, W]: the farthest surfaces still seen
+            if fill == "farthest-seen" and _enough(band):
+                target = clean[band].mean(dim=0).expand_as(clean)  # [H, W, 3]
+            elif fill == "farthest-ground" and below_horizon is not None and _enough(band & below_horizon):
+                ground = clean[band & below_horizon].mean(dim=0)  # [3]
+                target = torch.where(below_horizon[..., None], ground, target)  # [H, W, 3]
         w = T / T.clamp_min(t0)  # [H, W, 1]: 1 where T >= t0
         return w * clean + (1.0 - w) * target
 
@@ -368,13 +369,23 @@ class MediumCompositor:
         return self.with_sky(surface, alpha, sky)
 
     def clean_view(
-        self, med: MediumRender, clean: Tensor, one_light: bool = False, below: Tensor | None = None
+        self,
+        med: MediumRender,
+        clean: Tensor,
+        one_light: bool = False,
+        camera: Cameras | None = None,
+        up: Tensor | None = None,
     ) -> Tensor:
         """The clean render [H, W, 3] as shown and evaluated: the sky filled (``clean_sky``) and
         faded where the photos cannot see it (``clean_t0``, to ``clean_fill``); ``one_light``: the
-        run judged its medium's light the same along every ray (``clean_fill`` auto); ``below``
-        [H, W] bool: the rays below the horizon (:func:`below_horizon`; ``farthest-ground``)."""
-        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0, self.fill(one_light), below)
+        run judged its medium's light the same along every ray (``clean_fill`` auto); ``camera``
+        and the scene's unit ``up`` [3] place the horizon for ``farthest-ground`` (without them it
+        is the haze-light fade)."""
+        fill = self.fill(one_light)
+        below = None
+        if fill == "farthest-ground" and camera is not None and up is not None:
+            below = below_horizon(camera, clean.shape[0], clean.shape[1], up.to(clean))
+        return med.faded_clean(med.clean_with_sky(clean), self.config.clean_t0, fill, below)
 
     def fill(self, one_light: bool) -> Literal["haze-light", "farthest-seen", "farthest-ground"]:
         """The fade's target ``clean_fill`` resolves to for a run with this light verdict."""

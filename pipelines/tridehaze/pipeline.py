@@ -26,7 +26,6 @@ from components.medium.compositing import (
     CompositeConfig,
     MediumCompositor,
     MediumRender,
-    below_horizon,
     composite,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
@@ -543,10 +542,7 @@ class GaussianPipeline(Pipeline):
             T, S = med.pixel_transmittance(), med.scattering
             hazy = composite(surface if med.at_infinity else clean, med)
             one_light = self.light_isotropy.judged_one_light()
-            below = None
-            if self.compositor.fill(one_light) == "farthest-ground":
-                below = below_horizon(camera, clean.shape[0], clean.shape[1], self.scene_up.to(clean))
-            clean = self.compositor.clean_view(med, surface, one_light, below)
+            clean = self.compositor.clean_view(med, surface, one_light, camera, self.scene_up)
         return {
             "clean": clean.clamp(0, 1),
             "hazy": hazy.clamp(0, 1),

@@ -383,18 +383,19 @@ def test_clean_fill_farthest_ground_fills_below_the_horizon_only(device):
     w = T / T.clamp_min(t0)
     expected = torch.where(below[..., None], w * clean + (1 - w) * ground, haze_light)
     comp = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="farthest-ground"))
-    shown = comp.clean_view(med, clean, below=below)
+    shown = med.faded_clean(clean, t0, "farthest-ground", below)
     torch.testing.assert_close(shown, expected)
     assert float((shown - haze_light).abs().max()) > 0.1  # the lower half's fade moved
     kept = (T >= t0).expand_as(clean)
     torch.testing.assert_close(shown[kept], clean[kept])
-    torch.testing.assert_close(comp.clean_view(med, clean), haze_light)  # no horizon: the haze light
+    torch.testing.assert_close(comp.clean_view(med, clean), haze_light)  # no camera: the haze light
+    torch.testing.assert_close(med.faded_clean(clean, t0, "farthest-ground"), haze_light)  # no horizon
     few = torch.zeros_like(below)
     few[-1, :3] = True  # three pixels under the horizon: too few to average
-    torch.testing.assert_close(comp.clean_view(med, clean, below=few), haze_light)
+    torch.testing.assert_close(med.faded_clean(clean, t0, "farthest-ground", few), haze_light)
     auto = MediumCompositor(CompositeConfig(clean_t0=t0, clean_fill="auto"))  # never farthest-ground
     assert auto.fill(one_light=False) == "haze-light" and auto.fill(one_light=True) == "farthest-seen"
-    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False, below=below), haze_light)
+    torch.testing.assert_close(auto.clean_view(med, clean, one_light=False), haze_light)
 
 
 def test_below_horizon_splits_a_level_camera_at_its_principal_row(device):

@@ -146,9 +146,8 @@ def test_farthest_ground_fill_changes_the_clean_render_below_the_horizon_only(ha
     rays below that horizon where T is under t0; the composite and T do not change."""
     trainer = _train(_config(hazy_scene, tmp_path, device, "--pipeline.composite.clean-t0", "0.5"))
     pipe = trainer.pipeline
-    world_up = pipe.datamanager.scene.transform.rotation[
-        :, 2
-    ].float()  # the original z axis, normalised frame
+    # the original world's z axis in the normalised frame
+    world_up = pipe.datamanager.scene.transform.rotation[:, 2].float()
     assert float(pipe.scene_up @ world_up) > 0.99
     comp = pipe.compositor.config
     seen_ground = False
