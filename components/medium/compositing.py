@@ -451,3 +451,15 @@ def homogeneous_along_rays(
 def composite(clean: Tensor, medium: MediumRender) -> Tensor:
     """Hazy image I = J*T + S: clean [H, W, 3] -> [H, W, 3]."""
     return clean * medium.transmittance + medium.scattering
+
+
+def composite_over_backdrop(surface: Tensor, backdrop: Tensor, medium: MediumRender) -> Tensor:
+    """I = (surface + backdrop) T + S, with T held constant in the backdrop's term.
+
+    surface [H, W, 3] is the Gaussians' premultiplied colour, backdrop [H, W, 3] the training
+    background showing through their uncovered share, (1 - alpha) * bg. A random backdrop is a
+    training device, not data: through T its variance rewards any extinction that hides it, so the
+    medium thickens wherever coverage is still incomplete; here only the Gaussians' coverage answers
+    for it (``--pipeline.medium-ignores-backdrop``, docs/results/medium_recovery.md, session 34).
+    """
+    return surface * medium.transmittance + backdrop * medium.transmittance.detach() + medium.scattering

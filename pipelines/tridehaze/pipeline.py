@@ -27,6 +27,7 @@ from components.medium.compositing import (
     MediumCompositor,
     MediumRender,
     composite,
+    composite_over_backdrop,
 )
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
@@ -68,6 +69,12 @@ class GaussianPipelineConfig(PipelineConfig):
     """Background colour behind the Gaussians (RGB in [0, 1])."""
     random_background: bool = False
     """Use a random background colour each step (discourages Gaussians from encoding the background)."""
+    medium_ignores_backdrop: bool = False
+    """With ``random_background``: hold T constant in the random backdrop's term of the composite,
+    so that only the Gaussians' coverage answers for it. Otherwise the backdrop's variance rewards
+    any extinction that hides it and the medium thickens wherever coverage is incomplete; holding it
+    brings real statue's T closer to the truth but lets the sunlit field's sky out of the fade
+    (docs/results/medium_recovery.md, session 34)."""
     medium: MediumConfig = field(default_factory=MediumConfig)
     """The view-shared medium (``--pipeline.medium.backend none`` is plain 3DGS)."""
     composite: CompositeConfig = field(default_factory=CompositeConfig)
@@ -386,12 +393,7 @@ class GaussianPipeline(Pipeline):
         with record_function("td.medium"):
             med = self._medium(cam, out)
         with record_function("td.composite+loss"):
-            if med is None:
-                hazy = clean
-            else:
-                if med.at_infinity:
-                    clean = self._surface_colour(clean, out, med, bg)
-                hazy = composite(self.policy.apply(clean, med.transmittance, stage), med)
+            hazy = clean if med is None else self._training_composite(clean, out, med, bg, stage)
             loss, terms = self.loss_fn(hazy, target)
         self._photometric = loss.detach()
         metrics.update({k: v.detach() for k, v in terms.items()})
@@ -484,6 +486,18 @@ class GaussianPipeline(Pipeline):
         H, W = haze.shape[:2]
         bound = dark_channel_bound(target, light, default_patch(H, W))  # [H, W]
         return bound, haze[..., 0] >= 0.05
+
+    def _training_composite(
+        self, clean: Tensor, out: RasterizeOutput, med: MediumRender, bg: Tensor, stage: int
+    ) -> Tensor:
+        """The hazy training render [H, W, 3] of the clean one [H, W, 3] (premultiplied over ``bg``)."""
+        if med.at_infinity:
+            clean = self._surface_colour(clean, out, med, bg)
+        elif self.config.random_background and self.config.medium_ignores_backdrop:
+            backdrop = (1.0 - out.alpha[0]) * bg  # [H, W, 3]
+            surface = self.policy.apply(clean - backdrop, med.transmittance, stage)
+            return composite_over_backdrop(surface, backdrop, med)
+        return composite(self.policy.apply(clean, med.transmittance, stage), med)
 
     @staticmethod
     def _surface_colour(clean: Tensor, out: RasterizeOutput, med: MediumRender, background: Tensor) -> Tensor:

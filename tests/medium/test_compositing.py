@@ -17,6 +17,7 @@ from components.medium.compositing import (
     MediumRender,
     below_horizon,
     composite,
+    composite_over_backdrop,
     homogeneous_along_rays,
 )
 
@@ -483,3 +484,22 @@ def test_scattered_light_of_the_per_pixel_helper(device):
     light = torch.full((H, W, 3), 0.4, device=device)
     med = homogeneous_along_rays(beta, light, cam, _depth_with_edges(device))
     torch.testing.assert_close(med.scattered_light, torch.full((3,), 0.4, device=device))
+
+
+def test_backdrop_term_holds_t_constant(device):
+    """Forward: the plain composite of surface + backdrop. Backward: T sees only the surface, the
+    backdrop keeps its gradient (its coverage answers for it) and S is unchanged."""
+    g = torch.Generator().manual_seed(0)
+    surface = torch.rand(H, W, 3, generator=g).to(device) * 0.5
+    backdrop = (torch.rand(H, W, 3, generator=g).to(device) * 0.5).requires_grad_()
+    T = (torch.rand(H, W, 1, generator=g).to(device) * 0.9 + 0.05).requires_grad_()
+    S = (torch.rand(H, W, 3, generator=g).to(device) * 0.3).requires_grad_()
+    med = MediumRender(T, S, torch.ones(H, W, 1, device=device))
+    held = composite_over_backdrop(surface, backdrop, med)
+    plain = composite(surface + backdrop, med)  # the same sums in another order: float32 rounding
+    torch.testing.assert_close(held, plain, rtol=0, atol=1e-6)
+    weights = torch.rand(H, W, 3, generator=g).to(device)
+    dT, dS, dB = torch.autograd.grad((held * weights).sum(), (T, S, backdrop))
+    torch.testing.assert_close(dT, (weights * surface).sum(-1, keepdim=True), rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(dS, weights)
+    torch.testing.assert_close(dB, weights * T.detach())

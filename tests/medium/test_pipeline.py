@@ -78,6 +78,7 @@ ABLATIONS = [
     ("--pipeline.medium.light", "axial"),
     ("--pipeline.sky-shell", "500"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
+    ("--pipeline.medium-ignores-backdrop",),
 ]
 
 
@@ -342,3 +343,25 @@ def test_a_known_airlight_starts_the_medium_and_sets_the_priors(hazy_scene, tmp_
     assert other.init_info["init_airlight"] != pipe.init_info["init_airlight"]
     i = next(iter(pipe.priors))
     assert not torch.equal(other.priors[i].t_dcp, pipe.priors[i].t_dcp)
+
+
+def test_the_medium_can_ignore_the_random_backdrop(hazy_scene, tmp_path, device):
+    """Same step, same losses: the medium's gradient differs by the backdrop's term through T alone,
+    and the Gaussians' gradients are the same either way."""
+    from rich.console import Console
+
+    grads = {}
+    for name, extra in (("held", ("--pipeline.medium-ignores-backdrop",)), ("sees", ())):
+        cfg = _config(hazy_scene, tmp_path / name, device, *extra)
+        trainer = Trainer(cfg, console=Console(quiet=True))
+        trainer.setup()
+        pipe = trainer.pipeline
+        pipe.model.params["opacity_logits"].data.fill_(-2.0)  # the backdrop shows through
+        res = pipe.train_loss(1)  # Stage I, the medium trainable (no hold)
+        params = [p for p, _ in pipe.medium.param_groups().values()]
+        medium = torch.autograd.grad(res.loss, params, retain_graph=True, allow_unused=True)
+        colours = torch.autograd.grad(res.loss, pipe.model.sh0)[0]
+        grads[name] = ([g for g in medium if g is not None], colours)
+    assert len(grads["held"][0]) > 0
+    assert any(not torch.allclose(a, b) for a, b in zip(grads["held"][0], grads["sees"][0], strict=True))
+    torch.testing.assert_close(grads["held"][1], grads["sees"][1])
