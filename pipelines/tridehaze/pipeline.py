@@ -72,9 +72,10 @@ class GaussianPipelineConfig(PipelineConfig):
     medium_ignores_backdrop: bool = False
     """With ``random_background``: hold T constant in the random backdrop's term of the composite,
     so that only the Gaussians' coverage answers for it. Otherwise the backdrop's variance rewards
-    any extinction that hides it and the medium thickens wherever coverage is incomplete; holding it
-    brings real statue's T closer to the truth but lets the sunlit field's sky out of the fade
-    (docs/results/medium_recovery.md, session 34)."""
+    any extinction that hides it and the medium thickens wherever coverage is incomplete. Holding it
+    brings T closer to the truth on real photos with synthetic haze, but restores worse there (beer
+    -1.3 to -3.8 dB) and on the generated benchmark (the sunlit field's sky leaves the fade): an
+    ablation switch, not a recommended setting (docs/results/medium_recovery.md, session 34)."""
     medium: MediumConfig = field(default_factory=MediumConfig)
     """The view-shared medium (``--pipeline.medium.backend none`` is plain 3DGS)."""
     composite: CompositeConfig = field(default_factory=CompositeConfig)

@@ -346,8 +346,8 @@ def test_a_known_airlight_starts_the_medium_and_sets_the_priors(hazy_scene, tmp_
 
 
 def test_the_medium_can_ignore_the_random_backdrop(hazy_scene, tmp_path, device):
-    """Same step, same losses: the medium's gradient differs by the backdrop's term through T alone,
-    and the Gaussians' gradients are the same either way."""
+    """Same step, same forward pass: the medium's gradient changes when T is held in the backdrop's
+    term, the Gaussians' colour gradients do not."""
     from rich.console import Console
 
     grads = {}
