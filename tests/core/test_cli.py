@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import pytest
 
@@ -70,6 +70,28 @@ def test_method_help_shows_field_docs():
     ):
         assert flag in res.stdout, flag
     assert "Number of optimisation steps" in res.stdout  # docstrings become help text
+
+
+@dataclass
+class _Documented:
+    knob: int = 1
+    """A field whose help text
+    runs over three source lines
+    and reads as one paragraph."""
+
+
+def test_multi_line_field_docstrings_read_as_one_paragraph(capsys, monkeypatch):
+    """tyro keeps every break of a field docstring whose continuation lines are indented; the CLI
+    package dedents them first (tridehaze_plugin/cli/help_text.py)."""
+    import tyro
+
+    import tridehaze_plugin.cli  # noqa: F401 - installs the reflow
+
+    monkeypatch.setenv("COLUMNS", "200")
+    with pytest.raises(SystemExit):
+        tyro.cli(_Documented, args=["--help"])
+    out = capsys.readouterr().out
+    assert "A field whose help text runs over three source lines and reads as one paragraph." in out
 
 
 def test_missing_data_folder_is_one_line_exit_2(tmp_path):
