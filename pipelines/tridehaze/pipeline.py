@@ -135,10 +135,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """The dark-channel weight from ``light-decision-fraction`` of the run on, where the medium's
     light has proved the same along every ray by then (the spread of its per-ray light under
     ``light-isotropy-cv``); elsewhere ``lambda-dcp`` stays. 0 = off; it does nothing where the
-    medium freezes before the decision. Where no pixel sees the haze light the photos do not pin
-    its brightness, and a strong bound corrects a too dim light and a too dense medium; where the
-    light depends on the direction (sunlit haze) the photos do, and a strong bound only thins the
-    field along the sky (docs/results/medium_recovery.md, session 30)."""
+    medium never learns (a hold as long as Stage I). Where no pixel sees the haze light the photos
+    do not pin its brightness, and a strong bound corrects a too dim light and a too dense medium;
+    where the light depends on the direction (sunlit haze) the photos do, and a strong bound only
+    thins the field along the sky (docs/results/medium_recovery.md, session 30)."""
     light_isotropy_cv: Annotated[float, NonNegative] = 0.03
     """The spread (standard deviation over mean) of the medium's per-ray light S / (1 - T), over
     the pixels with at least 20 % haze, under which the light counts as the same along every ray.
@@ -148,7 +148,8 @@ class GaussianPipelineConfig(PipelineConfig):
     light_decision_fraction: Annotated[float, Range(0.0, 1.0)] = 0.25
     """When the light's spread is judged, as a fraction of the run; it is measured over the second
     half of the steps between the medium's hold and then (earlier, the sunlit and the other
-    generated scenes' spreads overlap)."""
+    generated scenes' spreads overlap). Where that falls at or after the freeze (a short Stage I:
+    ``tri-dehaze-fast`` freezes at a fifth), halfway between the hold's end and the freeze."""
     lambda_light: Annotated[float, NonNegative] = 0.0
     """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
     the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
@@ -247,6 +248,14 @@ class _PriorPlan:
         return _PriorPlan(uses_medium, dehaze_inputs, source if needs_depth else "none", needs_dcp)
 
 
+def light_decision_step(fraction: float, max_steps: int, hold: int, freeze: int) -> int:
+    """The step the medium's light is judged at: ``fraction`` of the run, or halfway through the
+    medium's learning (the hold's end to the freeze) where that comes at or after the freeze, so a
+    short Stage I still gets its verdict (docs/results/medium_recovery.md, session 35)."""
+    decide = scaled_step(None, fraction, max_steps)
+    return decide if decide < freeze else (hold + freeze) // 2
+
+
 def step_background(seed: int, step: int) -> Tensor:
     """The random background colour [3] of a training step: a function of (seed, step) alone, so a
     resumed run draws the same colours as an uninterrupted one."""
@@ -299,7 +308,9 @@ class GaussianPipeline(Pipeline):
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
-        decide = scaled_step(None, config.light_decision_fraction, max_steps)
+        decide = light_decision_step(
+            config.light_decision_fraction, max_steps, self.hold_steps, self.freeze_step
+        )
         window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
         strong = config.lambda_dcp_isotropic if decide < self.freeze_step else config.lambda_dcp
         self.light_isotropy = LightIsotropy(config.lambda_dcp, strong, config.light_isotropy_cv, window)

@@ -109,17 +109,22 @@ def test_the_light_isotropy_decision_is_logged_and_followed(hazy_scene, tmp_path
     assert trainer.pipeline.light_isotropy.weight(STEPS) == weight
 
 
-def test_no_light_decision_where_the_medium_freezes_first(hazy_scene, tmp_path, device):
-    """The dark-channel term acts in Stage I only: a decision due after the freeze is not made."""
+def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(hazy_scene, tmp_path, device):
+    """The dark-channel term acts in Stage I only: a decision due after the freeze is taken halfway
+    between the hold's end and the freeze instead; without a learning medium there is none."""
     from rich.console import Console
 
-    enabled = {}
-    for freeze in (3, 2):  # the decision is due at step 2 of 6
-        cfg = _config(hazy_scene, tmp_path / str(freeze), device, "--pipeline.freeze-step", str(freeze))
+    built = {}
+    for freeze, hold in ((3, "0"), (2, "0"), (2, "0.5")):  # the decision is due at step 2 of 6
+        cfg = _config(hazy_scene, tmp_path / f"{freeze}-{hold}", device, "--pipeline.freeze-step", str(freeze),
+                      "--pipeline.medium-hold-fraction", hold)  # fmt: skip
         trainer = Trainer(cfg, console=Console(quiet=True))
         trainer.setup()
-        enabled[freeze] = trainer.pipeline.light_isotropy.enabled
-    assert enabled == {3: True, 2: False}
+        iso = trainer.pipeline.light_isotropy
+        built[freeze, hold] = (iso.enabled, iso.decision_step)
+    assert built[3, "0"] == (True, 2)  # before the freeze: as asked
+    assert built[2, "0"] == (True, 1)  # due at the freeze: halfway through steps 0-2
+    assert built[2, "0.5"][0] is False  # held to step 3, frozen at 2: the medium never learns
 
 
 def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tmp_path, device):
