@@ -12,12 +12,15 @@ from __future__ import annotations
 import functools
 import inspect
 
-from tyro import _docstrings  # private: the patch below leaves it alone if its shape changes
+try:  # private: the patch below leaves tyro alone where its shape changes
+    from tyro import _docstrings
+except ImportError:  # pragma: no cover - depends on the installed tyro
+    _docstrings = None
 
 
 def reflow_field_docstrings() -> None:
     """Dedent the field descriptions tyro reads (idempotent; a no-op on a tyro without the hook)."""
-    parse = getattr(_docstrings, "parse_docstring_from_object", None)
+    parse = getattr(_docstrings, "parse_docstring_from_object", None) if _docstrings else None
     if parse is None or getattr(parse, "reflowed", False):
         return
 
