@@ -305,7 +305,8 @@ class RestorationArgs:
     seeds: Annotated[list[int], SEED_RANGE] = field(default_factory=lambda: [42, 7])
     """Seeds of every run (a difference smaller than their spread is not a result)."""
     max_steps: Annotated[int, Range(1)] = 3000
-    """Steps of every run."""
+    """Steps of every run, whatever a method's own length (``tri-dehaze-fast`` as users run it:
+    1000)."""
     methods: list[str] = field(default_factory=lambda: ["vanilla-gs", "dcp-gs", "tri-dehaze"])
     """Methods to train; the table reports the last one against the others and the 2D baselines."""
     scenes: list[str] = field(default_factory=list)
