@@ -506,7 +506,7 @@ class GaussianPipeline(Pipeline):
         if med.at_infinity:
             clean = self._surface_colour(clean, out, med, bg)
         elif self.config.random_background and self.config.medium_ignores_backdrop:
-            backdrop = (1.0 - out.alpha[0]) * bg  # [H, W, 3]
+            backdrop = self._backdrop(out, bg)  # [H, W, 3]
             surface = self.policy.apply(clean - backdrop, med.transmittance, stage)
             return composite_over_backdrop(surface, backdrop, med)
         return composite(self.policy.apply(clean, med.transmittance, stage), med)
@@ -518,7 +518,12 @@ class GaussianPipeline(Pipeline):
         (``composite.clean-sky``)."""
         if not med.at_infinity and med.sky is None:
             return clean
-        return clean - (1.0 - out.alpha[0]) * background  # [H, W, 3] premultiplied
+        return clean - GaussianPipeline._backdrop(out, background)  # [H, W, 3] premultiplied
+
+    @staticmethod
+    def _backdrop(out: RasterizeOutput, background: Tensor) -> Tensor:
+        """[H, W, 3] the background colour [3] showing through the Gaussians' uncovered share."""
+        return (1.0 - out.alpha[0]) * background
 
     def _densify_weight(self, out: RasterizeOutput, med: MediumRender | None, stage: int) -> Tensor | None:
         """clamp(T, t_min) at each Gaussian's projected centre while compensation is on."""

@@ -20,7 +20,7 @@ except ImportError:  # pragma: no cover - depends on the installed tyro
 
 def reflow_field_docstrings() -> None:
     """Dedent the field descriptions tyro reads (idempotent; a no-op on a tyro without the hook)."""
-    parse = getattr(_docstrings, "parse_docstring_from_object", None) if _docstrings else None
+    parse = getattr(_docstrings, "parse_docstring_from_object", None)
     if parse is None or getattr(parse, "reflowed", False):
         return
 
