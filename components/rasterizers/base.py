@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from tridehaze_plugin.config import ComponentConfig, NonNegative, Positive, Range, RegistryChoice
+from tridehaze_plugin.cuda_probe import cuda_available
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY, Registry
 
@@ -141,7 +142,7 @@ def resolve_backend(name: str, registry: Registry | None = None, device: torch.d
     None: CUDA when available, else CPU); check explicit names."""
     registry = registry or REGISTRY
     if device is None:
-        device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        device = torch.device("cuda" if cuda_available() else "cpu")
     if name != "auto":
         cls = registry.get("rasterizer", name)
         if cls.available() and not cls.runs_on(device):

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from components.rasterizers.base import RasterizeOutput, Rasterizer, check_inputs
+from tridehaze_plugin.cuda_probe import cuda_available
 from tridehaze_plugin.registry import register
 
 
@@ -34,7 +35,7 @@ class GsplatRasterizer(Rasterizer):
 
     @classmethod
     def unavailable_reason(cls) -> str | None:
-        if not torch.cuda.is_available():
+        if not cuda_available():
             return "no CUDA device"
         if importlib.util.find_spec("gsplat") is None:
             return "gsplat is not installed (pip install -e '.[cuda]')"

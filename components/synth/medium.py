@@ -34,7 +34,7 @@ class ConstantField:
     beta: float
 
     def __call__(self, x: Tensor) -> Tensor:
-        return torch.full(x.shape[:-1], self.beta, dtype=x.dtype)
+        return torch.full(x.shape[:-1], self.beta, dtype=x.dtype, device=x.device)
 
     def along(self, o: Tensor, d: Tensor, t: Tensor) -> Tensor:
         return torch.full_like(t, self.beta)
@@ -69,7 +69,7 @@ class BlobField:
     amplitudes: tuple[float, ...]
 
     def __call__(self, x: Tensor) -> Tensor:
-        out = torch.full(x.shape[:-1], self.base, dtype=x.dtype)
+        out = torch.full(x.shape[:-1], self.base, dtype=x.dtype, device=x.device)
         for c, r, a in zip(self.centers, self.radii, self.amplitudes, strict=True):
             q = (x[..., 0] - c[0]) ** 2 + (x[..., 1] - c[1]) ** 2 + (x[..., 2] - c[2]) ** 2
             out = out + a * torch.exp(q * (-0.5 / (r * r)))
@@ -81,7 +81,7 @@ class BlobField:
         out = torch.full_like(t, self.base)
         t_lo, t_hi = t[:, 0], t[:, -1]
         for c, r, a in zip(self.centers, self.radii, self.amplitudes, strict=True):
-            oc = o - torch.tensor(c, dtype=o.dtype)  # [R, 3]
+            oc = o - torch.tensor(c, dtype=o.dtype, device=o.device)  # [R, 3]
             tc = -(oc * d).sum(-1)  # [R] closest approach along the ray
             m2 = ((oc * oc).sum(-1) - tc * tc).clamp_min(0.0)  # [R] squared miss distance
             k = -0.5 / (r * r)
@@ -122,8 +122,8 @@ class NoisyHeightField:
     z_ground: float = 0.0
 
     def __call__(self, x: Tensor) -> Tensor:
-        w = torch.tensor(self.waves, dtype=x.dtype)  # [M, 3]
-        phase = torch.tensor(self.phases, dtype=x.dtype)  # [M]
+        w = torch.tensor(self.waves, dtype=x.dtype, device=x.device)  # [M, 3]
+        phase = torch.tensor(self.phases, dtype=x.dtype, device=x.device)  # [M]
         noise = torch.cos(x @ w.T + phase).mean(-1)  # [...]
         z = (x[..., 2] - self.z_ground).clamp_min(0.0)
         return self.beta_ground * torch.exp(z * (-1.0 / self.scale_height)) * (1.0 + self.strength * noise)
@@ -169,9 +169,12 @@ class MediumLight:
     dim_height: float = 2.0
 
     def color(self, v: Tensor) -> Tensor:  # [R, 3] unit directions -> [R, 3]
-        cos = (v * torch.tensor(self.sun, dtype=v.dtype)).sum(-1).clamp_min(0.0)
+        cos = (v * torch.tensor(self.sun, dtype=v.dtype, device=v.device)).sum(-1).clamp_min(0.0)
         w = cos**self.sharpness
-        base, glow = torch.tensor(self.base, dtype=v.dtype), torch.tensor(self.glow, dtype=v.dtype)
+        base, glow = (
+            torch.tensor(self.base, dtype=v.dtype, device=v.device),
+            torch.tensor(self.glow, dtype=v.dtype, device=v.device),
+        )
         return base + (glow - base) * w[:, None]
 
     def spatial(self, x: Tensor) -> Tensor:  # [..., 3] -> [...]
@@ -202,10 +205,13 @@ class ForwardScatterLight:
     g: float = 0.8
 
     def color(self, v: Tensor) -> Tensor:  # [R, 3] unit directions -> [R, 3]
-        cos = (v * torch.tensor(self.sun, dtype=v.dtype)).sum(-1)
+        cos = (v * torch.tensor(self.sun, dtype=v.dtype, device=v.device)).sum(-1)
         g = self.g
         ratio = ((1.0 - g) ** 2 / (1.0 + g * g - 2.0 * g * cos)) ** 1.5  # p_HG(cos) / p_HG(1) in (0, 1]
-        amb, sun = torch.tensor(self.ambient, dtype=v.dtype), torch.tensor(self.sun_color, dtype=v.dtype)
+        amb, sun = (
+            torch.tensor(self.ambient, dtype=v.dtype, device=v.device),
+            torch.tensor(self.sun_color, dtype=v.dtype, device=v.device),
+        )
         return (amb + sun * ratio[:, None]).clamp(0.0, 1.0)
 
     def spatial_z(self, z: Tensor) -> Tensor:

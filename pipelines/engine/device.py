@@ -6,6 +6,7 @@ import re
 
 import torch
 
+from tridehaze_plugin.cuda_probe import cuda_status
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -19,9 +20,12 @@ def resolve_device(name: str, flag: str = "--device", cuda_available: bool | Non
     """``auto`` -> cuda when available, else cpu; CUDA asked for without a GPU is a ConfigError (not a
     confusing failure later, e.g. while loading a checkpoint)."""
     check_device_name(name, flag)
-    cuda = torch.cuda.is_available() if cuda_available is None else cuda_available
+    cuda, failure = cuda_status() if cuda_available is None else (cuda_available, None)
     if name == "auto":
         return torch.device("cuda" if cuda else "cpu")
     if name.startswith("cuda") and not cuda:
-        raise ConfigError(f"{flag} {name} was asked for but CUDA is not available", fix=f"use {flag} cpu")
+        why = f" (CUDA failed to start: {failure})" if failure else ""
+        raise ConfigError(
+            f"{flag} {name} was asked for but CUDA is not available{why}", fix=f"use {flag} cpu"
+        )
     return torch.device(name)

@@ -313,7 +313,9 @@ class GaussianPipeline(Pipeline):
         )
         window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
         strong = config.lambda_dcp_isotropic if decide < self.freeze_step else config.lambda_dcp
-        self.light_isotropy = LightIsotropy(config.lambda_dcp, strong, config.light_isotropy_cv, window)
+        self.light_isotropy = LightIsotropy(config.lambda_dcp, strong, config.light_isotropy_cv, window).to(
+            datamanager.device
+        )
         self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)

@@ -1,6 +1,6 @@
 """The layers import only downward; every import (function-local ones too) is checked from the source.
 
-bottom (registry, config base, errors, method spec) < components < pipelines < CLI; inside
+bottom (registry, config base, errors, method spec, the CUDA probe) < components < pipelines < CLI; inside
 ``pipelines/`` the rooms are ordered too: engine < evaluation < viewer < tridehaze < experiments.
 """
 
@@ -14,7 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 BOTTOM = {"tridehaze_plugin", "tridehaze_plugin.errors", "tridehaze_plugin.registry",
-          "tridehaze_plugin.config", "tridehaze_plugin.method_spec"}  # fmt: skip
+          "tridehaze_plugin.config", "tridehaze_plugin.method_spec", "tridehaze_plugin.cuda_probe"}  # fmt: skip
 ROOMS = ("pipelines.engine", "pipelines.evaluation", "pipelines.viewer", "pipelines.tridehaze",
          "pipelines.experiments")  # fmt: skip
 """The rooms of ``pipelines/`` from the lowest up: a room imports only rooms before it (and itself)."""

@@ -195,7 +195,10 @@ def test_outputs_shapes_and_physics(hazy_scene, tmp_path, device):
     expect = (raw["clean"] * T + raw["scattering"]).clamp(0, 1)
     torch.testing.assert_close(out["hazy"], expect, atol=1e-5, rtol=0)
     kept = (T >= t0).expand_as(out["clean"])  # [H, W, 3]
-    assert torch.equal(out["clean"][kept], raw["clean"][kept])
+    if device.type == "cuda":  # two renders on CUDA agree to rounding, not bit for bit (seen on an H200)
+        torch.testing.assert_close(out["clean"][kept], raw["clean"][kept], atol=1e-5, rtol=0)
+    else:
+        assert torch.equal(out["clean"][kept], raw["clean"][kept])
     # the medium marched to a given depth (the evaluation's true-depth protocol): none at the camera,
     # less light through farther planes
     at = trainer.pipeline.medium_at_depth
