@@ -78,6 +78,12 @@ class _Documented:
     """A field whose help text
     runs over three source lines
     and reads as one paragraph."""
+    other: int = 2
+    """Lines that start with no letter
+    (a parenthesis, say) or with a number
+    -1.3 to -3.8 join too; a list keeps its items:
+    - first item
+    - second item"""
 
 
 def test_multi_line_field_docstrings_read_as_one_paragraph(capsys, monkeypatch):
@@ -92,6 +98,9 @@ def test_multi_line_field_docstrings_read_as_one_paragraph(capsys, monkeypatch):
         tyro.cli(_Documented, args=["--help"])
     out = capsys.readouterr().out
     assert "A field whose help text runs over three source lines and reads as one paragraph." in out
+    assert "Lines that start with no letter (a parenthesis, say) or with a number -1.3 to -3.8 join" in out
+    lines = [line.strip(" │") for line in out.splitlines()]
+    assert "- first item" in lines and any(line.startswith("- second item") for line in lines)
 
 
 def test_missing_data_folder_is_one_line_exit_2(tmp_path):
