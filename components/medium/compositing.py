@@ -109,8 +109,8 @@ class CompositeConfig:
     clean colour of such pixels just above the fade: the ground runs on under the haze where the
     sky cannot be; not in ``auto``, since where the medium is too dense rather than the ground
     hidden it loses (statue). ``auto``: ``farthest-seen`` where the run judged its medium's light
-    one light (``--pipeline.lambda-dcp-isotropic``'s decision; on every scene measured, one
-    without open sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md,
+    one light (the verdict at ``--pipeline.light-decision-fraction``, taken whatever the
+    dark-channel weights; on every scene measured, one without open sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md,
     sessions 32 and 33) the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7
     dB on open sky; the farthest ground gains 0.3-2.8 dB on fields and rooms under the other
     verdict, loses 0.03-0.22 dB on streets and 0.4-0.7 dB on thin patchy haze over a field, and

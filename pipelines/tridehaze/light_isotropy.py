@@ -25,14 +25,21 @@ NO_MEASUREMENT = -2.0
 
 
 class LightIsotropy(nn.Module):
-    """Collects the per-ray light's spread over a window of steps and decides the weight once.
+    """Collects the per-ray light's spread over a window of steps and judges it once: one light or
+    not. Two things read the verdict: the dark-channel weight (``strong`` after a one-light verdict;
+    0 keeps ``weak``) and the clean render's fill (``clean-fill auto``); ``measures`` is off where
+    neither does or the medium never learns.
 
     The sums are buffers, so a run resumed inside the window or after the decision goes on as an
     uninterrupted one would (the decision is kept, not made again)."""
 
-    def __init__(self, weak: float, strong: float, threshold: float, window: tuple[int, int]) -> None:
+    def __init__(
+        self, weak: float, strong: float, threshold: float, window: tuple[int, int], measures: bool = True
+    ) -> None:
         super().__init__()
         self.weak, self.strong, self.threshold = weak, strong, threshold
+        self.measures = measures
+        """Whether the verdict is taken at all."""
         self.start, self.decision_step = window
         self.register_buffer("sums", torch.zeros(3, dtype=torch.float64))  # count, sum, sum of squares
         # -1: not decided yet; NO_MEASUREMENT: decided without one (checkpoints hold finite values only)
@@ -41,13 +48,9 @@ class LightIsotropy(nn.Module):
         """The decision, once made (the trainer prints it and writes it to logs/decisions.jsonl)."""
         self._strong: bool | None = None  # the decided buffer read once, not at every step
 
-    @property
-    def enabled(self) -> bool:
-        return self.strong > 0.0 and self.strong != self.weak
-
     def observe(self, step: int, med: MediumRender) -> None:
         """Add one step's per-ray light (nothing is computed outside the window)."""
-        if not self.enabled or not self.start <= step < self.decision_step:
+        if not self.measures or not self.start <= step < self.decision_step:
             return
         haze = 1.0 - med.pixel_transmittance().detach()  # [H, W, 1]
         light = med.ray_light(1e-6).detach().mean(dim=-1)  # [H, W] luminance of the ray's light
@@ -60,12 +63,12 @@ class LightIsotropy(nn.Module):
         """The dark-channel weight at ``step``: ``weak`` until the decision, then the one decided.
         (Strong from the start and weak after an anisotropic verdict does not work: sunlit scenes
         do not recover from the strong bound's first steps, session 30.)"""
-        if not self.enabled or step < self.decision_step:
+        if not self.measures or step < self.decision_step:
             return self.weak
         if self._strong is None:
             if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = self.judged_one_light()
+            self._strong = self.judged_one_light() and self.strong > 0.0
         return self.strong if self._strong else self.weak
 
     def measured_cv(self) -> float | None:
@@ -76,9 +79,9 @@ class LightIsotropy(nn.Module):
 
     def judged_one_light(self) -> bool:
         """Whether the run has decided that its medium's light is one light (false before the
-        decision, without one, and where the isotropic weight is off)."""
+        decision, without one, and where nothing is measured)."""
         cv = self.measured_cv()
-        return self.enabled and cv is not None and cv < self.threshold
+        return self.measures and cv is not None and cv < self.threshold
 
     def _decide(self, step: int) -> None:
         n, s, ss = (float(v) for v in self.sums)
@@ -88,11 +91,11 @@ class LightIsotropy(nn.Module):
             cv = max(ss / n - mean * mean, 0.0) ** 0.5 / max(mean, 1e-12)
         # no pixel with enough haze: nothing for the bound to correct, and nothing to decide on
         self.decided.fill_(NO_MEASUREMENT if cv is None else cv)
-        strong = cv is not None and cv < self.threshold
-        weight = self.strong if strong else self.weak
+        one_light = cv is not None and cv < self.threshold
+        weight = self.strong if one_light and self.strong > 0.0 else self.weak
         if cv is None:
             text = "no pixel has enough haze to measure the medium's light on"
-        elif strong:
+        elif one_light:
             text = (
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): "
                 "one light, which only the dark channel pins"

@@ -134,8 +134,9 @@ class GaussianPipelineConfig(PipelineConfig):
     lambda_dcp_isotropic: Annotated[float, NonNegative] = 0.0
     """The dark-channel weight from ``light-decision-fraction`` of the run on, where the medium's
     light has proved the same along every ray by then (the spread of its per-ray light under
-    ``light-isotropy-cv``); elsewhere ``lambda-dcp`` stays. 0 = off; it does nothing where the
-    medium never learns (a hold as long as Stage I). Where no pixel sees the haze light the photos
+    ``light-isotropy-cv``); elsewhere ``lambda-dcp`` stays. 0 = off (the verdict is still taken
+    for ``composite.clean-fill auto``); it does nothing where the medium never learns (a hold as
+    long as Stage I). Where no pixel sees the haze light the photos
     do not pin its brightness, and a strong bound corrects a too dim light and a too dense medium;
     where the light depends on the direction (sunlit haze) the photos do, and a strong bound only
     thins the field along the sky (docs/results/medium_recovery.md, session 30)."""
@@ -312,10 +313,14 @@ class GaussianPipeline(Pipeline):
             config.light_decision_fraction, max_steps, self.hold_steps, self.freeze_step
         )
         window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
-        strong = config.lambda_dcp_isotropic if decide < self.freeze_step else config.lambda_dcp
-        self.light_isotropy = LightIsotropy(config.lambda_dcp, strong, config.light_isotropy_cv, window).to(
-            datamanager.device
-        )
+        read = config.lambda_dcp_isotropic > 0 or config.composite.clean_fill == "auto"
+        self.light_isotropy = LightIsotropy(
+            config.lambda_dcp,
+            config.lambda_dcp_isotropic,
+            config.light_isotropy_cv,
+            window,
+            measures=read and decide < self.freeze_step,  # the medium learns before the verdict
+        ).to(datamanager.device)
         self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)

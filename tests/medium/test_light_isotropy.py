@@ -53,7 +53,7 @@ def test_judged_one_light_only_after_an_even_verdict():
     spread = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     _run(torch.linspace(0.5, 0.9, 64).reshape(8, 8), range(6), spread)
     assert not spread.judged_one_light()
-    off = LightIsotropy(weak=0.1, strong=0.0, threshold=0.065, window=(0, 4))
+    off = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4), measures=False)
     _run(light, range(6), off)
     assert not off.judged_one_light()
 
@@ -96,11 +96,20 @@ def test_no_hazy_pixel_decides_weak_and_the_record_is_json():
     assert resumed.weight(3) == 0.1 and not resumed.decisions
 
 
-def test_off_when_the_strong_weight_is_zero_or_the_same():
+def test_the_verdict_does_not_depend_on_the_strong_weight():
+    """The fill reads the verdict too: a strong weight of 0 (off) or equal to the weak one keeps the
+    weight weak, but the light is still judged."""
     for strong in (0.0, 0.1):
         iso = LightIsotropy(weak=0.1, strong=strong, threshold=0.065, window=(0, 2))
         assert _run(torch.full((4, 4), 0.6), range(4), iso) == [0.1] * 4
-        assert float(iso.sums[0]) == 0.0 and not iso.decisions
+        assert iso.judged_one_light() and iso.decisions[0].data["dcp_weight"] == 0.1
+        assert "one light" in iso.decisions[0].message
+
+
+def test_nothing_is_measured_where_nothing_reads_the_verdict():
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 2), measures=False)
+    assert _run(torch.full((4, 4), 0.6), range(4), iso) == [0.1] * 4
+    assert float(iso.sums[0]) == 0.0 and not iso.decisions and not iso.judged_one_light()
 
 
 def test_a_resumed_run_keeps_the_decision_and_the_window_sums():

@@ -121,7 +121,7 @@ def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(h
         trainer = Trainer(cfg, console=Console(quiet=True))
         trainer.setup()
         iso = trainer.pipeline.light_isotropy
-        built[freeze, hold] = (iso.enabled, iso.decision_step)
+        built[freeze, hold] = (iso.measures, iso.decision_step)
     assert built[3, "0"] == (True, 2)  # before the freeze: as asked
     assert built[2, "0"] == (True, 1)  # due at the freeze: halfway through steps 0-2
     assert built[2, "0.5"][0] is False  # held to step 3, frozen at 2: the medium never learns
