@@ -309,18 +309,7 @@ class GaussianPipeline(Pipeline):
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
-        decide = light_decision_step(
-            config.light_decision_fraction, max_steps, self.hold_steps, self.freeze_step
-        )
-        window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
-        read = config.lambda_dcp_isotropic > 0 or config.composite.clean_fill == "auto"
-        self.light_isotropy = LightIsotropy(
-            config.lambda_dcp,
-            config.lambda_dcp_isotropic,
-            config.light_isotropy_cv,
-            window,
-            measures=read and decide < self.freeze_step,  # the medium learns before the verdict
-        ).to(datamanager.device)
+        self.light_isotropy = self._light_verdict(max_steps).to(datamanager.device)
         self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)
@@ -330,6 +319,23 @@ class GaussianPipeline(Pipeline):
         self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
+
+    def _light_verdict(self, max_steps: int) -> LightIsotropy:
+        """The one-light verdict and the dark-channel weight it sets (measured only where the medium
+        learns before it and the weight or ``clean-fill auto`` reads it)."""
+        cfg = self.config
+        decide = light_decision_step(
+            cfg.light_decision_fraction, max_steps, self.hold_steps, self.freeze_step
+        )
+        window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
+        read = cfg.lambda_dcp_isotropic > 0 or cfg.composite.clean_fill == "auto"
+        return LightIsotropy(
+            cfg.lambda_dcp,
+            cfg.lambda_dcp_isotropic,
+            cfg.light_isotropy_cv,
+            window,
+            measures=read and decide < self.freeze_step,
+        )
 
     def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:
         """Start the medium from the dark channel's estimate; returns the seed colours to use
