@@ -110,11 +110,12 @@ class CompositeConfig:
     sky cannot be; not in ``auto``, since where the medium is too dense rather than the ground
     hidden it loses (statue). ``auto``: ``farthest-seen`` where the run judged its medium's light
     one light (the verdict at ``--pipeline.light-decision-fraction``, taken whatever the
-    dark-channel weights; on every scene measured, one without open sky), else the haze light. On re-rendered runs (docs/results/medium_recovery.md,
-    sessions 32 and 33) the farthest surfaces gain 3-5 dB on dense haze around walls and lose 3-7
-    dB on open sky; the farthest ground gains 0.3-2.8 dB on fields and rooms under the other
-    verdict, loses 0.03-0.22 dB on streets and 0.4-0.7 dB on thin patchy haze over a field, and
-    1.0-2.5 dB on the hazed statue, whose background medium is too dense."""
+    dark-channel weights; on every scene measured, one without open sky), else the haze light.
+    On re-rendered runs (docs/results/medium_recovery.md, sessions 32 and 33) the farthest
+    surfaces gain 3-5 dB on dense haze around walls and lose 3-7 dB on open sky; the farthest
+    ground gains 0.3-2.8 dB on fields and rooms under the other verdict, loses 0.03-0.22 dB on
+    streets and 0.4-0.7 dB on thin patchy haze over a field, and 1.0-2.5 dB on the hazed statue,
+    whose background medium is too dense."""
 
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""

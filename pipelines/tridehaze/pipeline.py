@@ -136,10 +136,10 @@ class GaussianPipelineConfig(PipelineConfig):
     light has proved the same along every ray by then (the spread of its per-ray light under
     ``light-isotropy-cv``); elsewhere ``lambda-dcp`` stays. 0 = off (the verdict is still taken
     for ``composite.clean-fill auto``); it does nothing where the medium never learns (a hold as
-    long as Stage I). Where no pixel sees the haze light the photos
-    do not pin its brightness, and a strong bound corrects a too dim light and a too dense medium;
-    where the light depends on the direction (sunlit haze) the photos do, and a strong bound only
-    thins the field along the sky (docs/results/medium_recovery.md, session 30)."""
+    long as Stage I). Where no pixel sees the haze light the photos do not pin its brightness, and
+    a strong bound corrects a too dim light and a too dense medium; where the light depends on the
+    direction (sunlit haze) the photos do, and a strong bound only thins the field along the sky
+    (docs/results/medium_recovery.md, session 30)."""
     light_isotropy_cv: Annotated[float, NonNegative] = 0.03
     """The spread (standard deviation over mean) of the medium's per-ray light S / (1 - T), over
     the pixels with at least 20 % haze, under which the light counts as the same along every ray.

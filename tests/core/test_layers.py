@@ -14,7 +14,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 BOTTOM = {"tridehaze_plugin", "tridehaze_plugin.errors", "tridehaze_plugin.registry",
-          "tridehaze_plugin.config", "tridehaze_plugin.method_spec", "tridehaze_plugin.cuda_probe"}  # fmt: skip
+          "tridehaze_plugin.config", "tridehaze_plugin.method_spec",
+          "tridehaze_plugin.cuda_probe"}  # fmt: skip
 ROOMS = ("pipelines.engine", "pipelines.evaluation", "pipelines.viewer", "pipelines.tridehaze",
          "pipelines.experiments")  # fmt: skip
 """The rooms of ``pipelines/`` from the lowest up: a room imports only rooms before it (and itself)."""
