@@ -35,7 +35,11 @@ class DensifyConfig:
     refine_every: int = 100
     """Steps between two refinements."""
     reset_every: int = 3000
-    """Steps between opacity resets (which let occluded floaters be pruned)."""
+    """Steps between opacity resets (which let occluded floaters be pruned); resets come only up
+    to ``refine-stop``, so with its default (half the run) a run under 6000 steps has none, as
+    tri-dehaze's 3000. Measured on tri-dehaze (docs/results/medium_recovery.md, session 36): one
+    reset at the medium's freeze is a tie, one while the medium learns costs 2.4 dB (the medium
+    takes the image meanwhile)."""
     grow_grad2d: float = 0.0002
     """Mean screen-space gradient (NDC units) above which a Gaussian is cloned or split."""
     grow_scale3d: float = 0.01
@@ -43,7 +47,8 @@ class DensifyConfig:
     prune_opacity: float = 0.005
     """Gaussians more transparent than this are removed."""
     prune_scale3d: float = 0.1
-    """After the first opacity reset, Gaussians larger than this fraction of the extent are removed."""
+    """After the first opacity reset, Gaussians larger than this fraction of the extent are removed
+    (never in a run without a reset)."""
     max_gaussians: int = 1_000_000
     """Hard cap on the number of Gaussians; growth beyond it keeps the highest-gradient candidates."""
     growth: Literal["schedule", "plateau"] = "schedule"
