@@ -29,10 +29,10 @@ if str(REPO) not in sys.path:
 from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 
-from components.losses.dcp import estimate_dcp  # noqa: E402
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.experiments.tables import fmt_number  # noqa: E402
+from pipelines.tridehaze.priors import dcp_per_view  # noqa: E402
 
 MIN_HAZE = 0.3
 """Pixels with less haze (1 - T) say little about the light."""
@@ -57,9 +57,8 @@ def _mean(values: list[Tensor]) -> list[float] | None:
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
-    airlight = torch.stack(
-        [torch.from_numpy(estimate_dcp(dm.image(i).cpu().numpy()).airlight) for i in dm.train_indices]
-    ).mean(dim=0)  # [3]
+    dcp = dcp_per_view(dm, dm.train_indices)  # the estimate the pipeline's medium start reads
+    airlight = torch.stack([torch.from_numpy(d.airlight) for d in dcp.values()]).mean(dim=0)  # [3]
     true_l, model_l, errors = [], [], []
     for view in reference_views(dm):
         out = pipe.render(view.camera)
