@@ -191,12 +191,14 @@ class MediumField(nn.Module):
     ``is_field`` False means the medium is not a 3D field evaluated along rays (``none``, or
     ``gaussian-bound`` which renders through the rasterizer instead); ``has_medium`` False means
     there is no medium at all (plain 3DGS); ``renders_with_gaussians`` True means the medium lives
-    on the scene's Gaussians (:meth:`attach`, :meth:`render_view`).
+    on the scene's Gaussians (:meth:`attach`, :meth:`render_view`); ``recolours_light`` True means
+    its light takes a per-channel factor (:meth:`recolour_light`).
     """
 
     is_field: bool = True
     has_medium: bool = True
     renders_with_gaussians: bool = False
+    recolours_light: bool = False
 
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
         super().__init__()
@@ -230,6 +232,12 @@ class MediumField(nn.Module):
     @torch.no_grad()
     def initialize(self, beta: float, light: Tensor) -> None:  # noqa: B027 - optional
         """Set the field to a uniform extinction ``beta`` and light ``light`` [3] (data-driven init)."""
+
+    def recolour_light(self, gain: Tensor) -> None:
+        """Multiply the medium's light by ``gain`` [3] per channel from now on (the light colour
+        fit at the freeze, which the light's own parametrisation cannot take in one step). Only
+        where ``recolours_light``."""
+        raise NotImplementedError(f"{type(self).__name__} cannot recolour its light")
 
     def bind_scene(self, root: Path, transform: SceneTransform) -> None:  # noqa: B027 - optional hook
         """Read what the field needs from the dataset itself (``reference``: the generator's medium);
@@ -318,6 +326,8 @@ class MediumHeads(nn.Module):
             else None
         )  # [3], normalised where used
         self.log_kappa = nn.Parameter(torch.zeros(()))
+        self.register_buffer("light_gain", torch.ones(3))  # [3] per-channel factor on the light
+        self._recoloured = False  # light_gain read once, not at every call
         with torch.no_grad():  # near-uniform start: the last layers barely see the features
             for head in (self.beta_head, self.light_head):
                 head[-1].weight.mul_(0.01)
@@ -328,6 +338,8 @@ class MediumHeads(nn.Module):
         """Uniform start at ``beta`` and ``light``: the biases carry the values, kappa the scale."""
         for head in (self.beta_head, self.light_head):
             head[-1].bias.zero_()
+        self.light_gain.fill_(1.0)
+        self._recoloured = False
         # beta = kappa * softplus(0) = kappa * ln 2
         self.log_kappa.fill_(math.log(max(beta, 1e-8) / math.log(2.0)))
         logit = torch.logit(light.float().clamp(0.02, 0.98))
@@ -382,7 +394,20 @@ class MediumHeads(nn.Module):
         if self.light_mode == "sh":
             coeffs = raw.unflatten(-1, (-1, 3))  # [P, K, 3] (unflatten: P may be 0)
             raw = eval_sh(self.sh_degree, coeffs, dirs)  # [P, 3]
-        return torch.sigmoid(raw)
+        light = torch.sigmoid(raw)
+        return light * self.light_gain.to(light) if self._recoloured else light
+
+    @torch.no_grad()
+    def recolour(self, gain: Tensor) -> None:
+        """Multiply the light by ``gain`` [3] from now on (on top of any earlier gain)."""
+        self.light_gain.mul_(gain.to(self.light_gain))
+        self._recoloured = True
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints from before the light colour fit: the light as the head gives it
+        state_dict.setdefault(prefix + "light_gain", torch.ones_like(self.light_gain))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._recoloured = bool((self.light_gain != 1.0).any())
 
     def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
         """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)

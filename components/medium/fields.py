@@ -31,6 +31,7 @@ class HeadedField(MediumField):
     """A field made of an encoder ``encode(x) -> [P, F]`` followed by the shared heads."""
 
     feature_dim: int
+    recolours_light = True
 
     def _build_heads(self) -> None:
         self.heads = MediumHeads(self.config, self.feature_dim)
@@ -63,6 +64,9 @@ class HeadedField(MediumField):
     def initialize(self, beta: float, light: Tensor) -> None:
         """Uniform start; the heads' near-zero last layers hide the random feature variation."""
         self.heads.initialize(beta, light)
+
+    def recolour_light(self, gain: Tensor) -> None:
+        self.heads.recolour(gain)
 
 
 def _tv(grid: Tensor, dims: tuple[int, ...]) -> Tensor:

@@ -33,6 +33,7 @@ from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.metrics import psnr
+from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, mean_ray_light
 from pipelines.tridehaze.light_isotropy import LightIsotropy
 from pipelines.tridehaze.priors import (
     ViewPrior,
@@ -44,6 +45,7 @@ from pipelines.tridehaze.priors import (
     observed_point_colors,
     resolve_depth_prior,
     scaled_step,
+    visible_points,
 )
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.sky_shell import sky_shell
@@ -186,6 +188,12 @@ class GaussianPipelineConfig(PipelineConfig):
     nearest camera's distance; ``observed`` re-reads every training view that sees the point and
     dehazes each observation at its own distance (T^2-weighted mean), which does not depend on how
     the dataset chose its one colour (docs/results/medium_recovery.md, session 17)."""
+    light_colour_fit: bool = False
+    """At the freeze, give the medium's light the colour that the seed points' hazy colours say,
+    read from how each point's colour changes with its haze across the training views (with the
+    model's T; the medium's brightness is kept). The joint fit leaves the light's colour where it
+    started, and the clean render then takes the difference as a cast (pipelines/tridehaze/
+    light_colour_fit.py; docs/results/medium_recovery.md, session 37)."""
     input_dehaze: Literal["none", "dcp"] = "none"
     """Dehaze the training views before training: ``dcp`` replaces each by its single-image dark
     channel prior restoration (guided-filter refined T, clamped at 0.05): the restoration-assisted
@@ -310,6 +318,9 @@ class GaussianPipeline(Pipeline):
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
         self.light_isotropy = self._light_verdict(max_steps).to(datamanager.device)
+        self.light_colour = LightColourFit(
+            config.light_colour_fit and self.medium.has_medium, self.freeze_step
+        )
         self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)
@@ -403,6 +414,8 @@ class GaussianPipeline(Pipeline):
         cfg, dm = self.config, self.datamanager
         stage = self.stage_at(step)
         self.stage.fill_(stage)
+        if self.light_colour.due(step):
+            self._fit_light_colour()
         self.medium.set_trainable(self._medium_trainable(step), self.model)
         idx = dm.train_index(step)
         target = self.training_target(idx)  # [H, W, 3]
@@ -430,6 +443,31 @@ class GaussianPipeline(Pipeline):
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
+
+    @torch.no_grad()
+    def _fit_light_colour(self) -> None:
+        """Recolour the medium's light by the fit over the training views (once, at the freeze)."""
+        if not self.medium.recolours_light:
+            self.light_colour.skip(f"the {self.config.medium.backend} medium has no light to recolour")
+            return
+        dm, points = self.datamanager, self.datamanager.scene.points
+        pts = None if points is None else points.detach().float().cpu()
+        ids, colours, ts, lights = [], [], [], []
+        for i in dm.train_indices:
+            cam = dm.camera(i)
+            med = self._medium(cam, self._rasterize(cam, None, self.background))
+            T = med.pixel_transmittance()[..., 0].cpu()  # [H, W]
+            if (light := mean_ray_light(T, med.scattering.cpu())) is not None:
+                lights.append(light)
+            if pts is not None and len(pts):
+                vis = visible_points(cam, pts)
+                ids.append(vis.mask.nonzero()[:, 0])
+                colours.append(dm.image(i).cpu()[vis.v, vis.u].float())
+                ts.append(T[vis.v, vis.u])
+        obs = PointObservations(torch.cat(ids), torch.cat(colours), torch.cat(ts)) if ids else None
+        gain = self.light_colour.gain(obs, torch.stack(lights).mean(dim=0) if lights else None)
+        if gain is not None:
+            self.medium.recolour_light(gain)
 
     def _scene_priors(
         self, cam: Cameras, depth: Tensor, target: Tensor, prior: ViewPrior | None, metrics: dict
@@ -635,8 +673,8 @@ class GaussianPipeline(Pipeline):
         return self.medium
 
     def pop_decisions(self) -> list[str | Decision]:
-        out = self.densifier.decisions + self.light_isotropy.decisions
-        self.densifier.decisions, self.light_isotropy.decisions = [], []
+        out = self.densifier.decisions + self.light_isotropy.decisions + self.light_colour.decisions
+        self.densifier.decisions, self.light_isotropy.decisions, self.light_colour.decisions = [], [], []
         return out
 
     def _apply(self, fn, *args, **kwargs):  # noqa: ANN001, ANN202

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from components.data.cameras import Cameras
 from components.losses.dcp import DCPResult, dehaze, estimate_dcp
 from components.losses.depth_priors import (
     depth_from_dcp,
@@ -136,6 +137,30 @@ def _invert_haze(colour: Tensor, airlight: Tensor, T: Tensor) -> Tensor:
     return ((colour - airlight * (1 - T)) / T).clamp(0.0, 1.0)
 
 
+@dataclass
+class VisiblePoints:
+    """The seed points one view sees, and where."""
+
+    mask: Tensor  # [M] bool
+    u: Tensor  # [m] pixel column of each seen point
+    v: Tensor  # [m] pixel row
+    distance: Tensor  # [m] distance from the camera
+
+
+def visible_points(camera: Cameras, points: Tensor) -> VisiblePoints:
+    """The points [M, 3] (CPU, float) that ``camera`` sees: inside the image and not behind the
+    SfM depth prior's occlusion-filtered point z-buffer (within 2 %)."""
+    cam = camera.to("cpu")
+    H, W = int(cam.height[0]), int(cam.width[0])
+    viewmat, K = cam.viewmats()[0].float(), cam.Ks()[0].float()
+    zbuf, valid = depth_from_sfm(points, viewmat, K, H, W)  # [H, W] nearest point depth
+    pc, uv = project_points(points, viewmat, K)  # [M, 3], [M, 2]
+    ok = in_image(pc, uv, W, H, near=1e-3)
+    u, v = uv[:, 0].long().clamp(0, W - 1), uv[:, 1].long().clamp(0, H - 1)
+    ok &= valid[v, u] & (pc[:, 2] <= 1.02 * zbuf[v, u])
+    return VisiblePoints(ok, u[ok], v[ok], pc[ok].norm(dim=-1))
+
+
 def observed_point_colors(
     dm: DataManager, indices: list[int], points: Tensor, est: MediumEstimate, t_floor: float = 0.2
 ) -> tuple[Tensor, Tensor]:
@@ -150,18 +175,11 @@ def observed_point_colors(
     num, den = torch.zeros(len(pts), 3), torch.zeros(len(pts))
     A = est.airlight.float().cpu()  # [3]
     for i in indices:
-        cam = dm.camera(i).to("cpu")
-        H, W = int(cam.height[0]), int(cam.width[0])
-        viewmat, K = cam.viewmats()[0].float(), cam.Ks()[0].float()
-        zbuf, valid = depth_from_sfm(pts, viewmat, K, H, W)  # [H, W] nearest point depth
-        pc, uv = project_points(pts, viewmat, K)  # [M, 3], [M, 2]
-        ok = in_image(pc, uv, W, H, near=1e-3)
-        u, v = uv[:, 0].long().clamp(0, W - 1), uv[:, 1].long().clamp(0, H - 1)
-        ok &= valid[v, u] & (pc[:, 2] <= 1.02 * zbuf[v, u])
-        c = dm.image(i).cpu()[v[ok], u[ok]].float()  # [m, 3] hazy observations
-        T = torch.exp(-est.beta * pc[ok].norm(dim=-1)).clamp_min(t_floor)[:, None]  # [m, 1]
-        num[ok] += T**2 * _invert_haze(c, A, T)
-        den[ok] += T[:, 0] ** 2
+        vis = visible_points(dm.camera(i), pts)
+        c = dm.image(i).cpu()[vis.v, vis.u].float()  # [m, 3] hazy observations
+        T = torch.exp(-est.beta * vis.distance).clamp_min(t_floor)[:, None]  # [m, 1]
+        num[vis.mask] += T**2 * _invert_haze(c, A, T)
+        den[vis.mask] += T[:, 0] ** 2
     seen = den > 0
     return (num / den.clamp_min(1e-12)[:, None]).to(points.device), seen.to(points.device)
 

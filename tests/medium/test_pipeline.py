@@ -79,6 +79,7 @@ ABLATIONS = [
     ("--pipeline.sky-shell", "500"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
     ("--pipeline.medium-ignores-backdrop",),
+    ("--pipeline.light-colour-fit",),
 ]
 
 
@@ -125,6 +126,39 @@ def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(h
     assert built[3, "0"] == (True, 2)  # before the freeze: as asked
     assert built[2, "0"] == (True, 1)  # due at the freeze: halfway through steps 0-2
     assert built[2, "0.5"][0] is False  # held to step 3, frozen at 2: the medium never learns
+
+
+@pytest.mark.parametrize("backend", ["triplane", "gaussian-bound"])
+def test_the_light_colour_fit_is_made_once_at_the_freeze_and_logged(
+    hazy_scene, tmp_path, device, backend, monkeypatch
+):
+    """``--pipeline.light-colour-fit``: one decision at the freeze (step 3, logged after it) in
+    logs/decisions.jsonl; the gain it names is the medium's from then on and is in the checkpoint;
+    a medium without a field light says so instead. The tiny scene's few points are let through."""
+    import pipelines.tridehaze.light_colour_fit as fit
+
+    monkeypatch.setattr(fit, "MIN_POINTS", 5)
+    monkeypatch.setattr(fit, "MIN_VIEWS", 2)
+    monkeypatch.setattr(fit, "MAX_REL_STDERR", 1.0)
+    cfg = _config(
+        hazy_scene, tmp_path, device, "--pipeline.light-colour-fit", "--pipeline.medium.backend", backend
+    )
+    trainer = _train(cfg)
+    lines = (trainer.run_dir / "logs" / "decisions.jsonl").read_text().splitlines()
+    records = [r for r in map(json.loads, lines) if "light_gain" in r]
+    assert len(records) == 1 and records[0]["step"] == 4
+    gain = records[0]["light_gain"]
+    medium = trainer.pipeline.medium_field()
+    if backend == "gaussian-bound":
+        assert gain is None and "no light to recolour" in records[0]["message"]
+        return
+    assert gain is not None and "recoloured by" in records[0]["message"]
+    expected = torch.tensor(gain)
+    assert not torch.equal(expected, torch.ones(3))
+    torch.testing.assert_close(medium.heads.light_gain.cpu(), expected)
+    run = load_run(trainer.run_dir / "config.yml", device=device)
+    torch.testing.assert_close(run.pipeline.medium_field().heads.light_gain.cpu(), expected)
+    assert not run.pipeline.light_colour.due(STEPS)
 
 
 def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tmp_path, device):

@@ -1,0 +1,163 @@
+"""The haze light's colour, read at the freeze from how each seed point's colour changes with its haze.
+
+A surface point p seen by views k through transmittance T_kp shows I_kp = J_p T_kp + L (1 - T_kp).
+With T known (the model's own, at the end of Stage I) and J_p free per point, that is linear in
+the light: I / T = J_p + L (1 - T) / T, and the within-point (fixed-effects) regression of I / T
+on (1 - T) / T gives L per channel. The joint gradient fit hardly moves the light along this
+direction, where every Gaussian's colour can take up a change of the light's colour: in rooms it
+ends grey where the truth and this estimate are blue, and the clean render takes the difference
+as a cast (docs/results/medium_recovery.md, sessions 36 and 37). Only the colour is corrected:
+the estimate's brightness assumes one light for every ray, which a direction-dependent or
+dimming light is not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from pipelines.engine.contract import Decision
+
+MIN_VIEWS = 3
+"""Points seen by fewer training views say too little about how their colour changes with haze."""
+MIN_POINTS = 50
+"""Fewer such points: no fit."""
+MIN_T = 0.05
+"""Observations through thicker haze are taken at this T (their I / T is mostly the photo's noise)."""
+MAX_REL_STDERR = 0.02
+"""A fit whose standard error exceeds this share of the light is not applied: the haze's
+amount hardly varies within the points (thin or even haze), so nothing pins the colour. The
+generated and real scenes measured so far fit within 0.002-0.013 (session 37)."""
+GAIN_RANGE = (0.8, 1.25)
+"""Per-channel limits on the correction: a larger one means the fit has gone wrong, not the light."""
+MIN_HAZE = 0.3
+"""Pixels whose rendered 1 - T is below this do not enter the model's mean light (S / (1 - T) is noise)."""
+
+
+@dataclass
+class PointObservations:
+    """Every (point, view) pair where a training view sees a seed point."""
+
+    point: Tensor  # [O] int64 index of the point
+    colour: Tensor  # [O, 3] the hazy photo's colour at the point's pixel
+    transmittance: Tensor  # [O] the model's T at that pixel
+
+
+@dataclass
+class LightFit:
+    light: Tensor  # [3]
+    rel_stderr: float
+    """The largest channel's (statistical) standard error over the light's mean."""
+    observations: int
+    points: int
+
+
+def fit_light(obs: PointObservations) -> LightFit | None:
+    """The fixed-effects light [3] (weighted by T^2: the inversion multiplies the photo's error
+    by 1 / T); None with fewer than ``MIN_POINTS`` points seen by ``MIN_VIEWS`` views or no
+    variation of the haze within them."""
+    pid, T = obs.point.cpu(), obs.transmittance.float().cpu().clamp(MIN_T, 1.0)
+    y = obs.colour.float().cpu() / T[:, None]  # [O, 3]
+    x = (1.0 - T) / T  # [O]
+    w = T**2
+    m = int(pid.max()) + 1 if len(pid) else 0
+    count = torch.zeros(m).index_add_(0, pid, torch.ones_like(w))  # [M]
+    keep = (count >= MIN_VIEWS)[pid]  # [O]
+    points = int((count >= MIN_VIEWS).sum())
+    if points < MIN_POINTS:
+        return None
+    sw = torch.zeros(m).index_add_(0, pid, w).clamp_min(1e-12)  # [M]
+    x_mean = torch.zeros(m).index_add_(0, pid, w * x) / sw  # [M]
+    y_mean = torch.zeros(m, 3).index_add_(0, pid, w[:, None] * y) / sw[:, None]  # [M, 3]
+    xd, yd, wk = (x - x_mean[pid])[keep], (y - y_mean[pid])[keep], w[keep]
+    sxx = float((wk * xd**2).sum())
+    if sxx <= 1e-12:
+        return None
+    light = (wk[:, None] * xd[:, None] * yd).sum(dim=0) / sxx  # [3]
+    resid = yd - xd[:, None] * light  # [O', 3]
+    dof = max(len(wk) - points - 1, 1)
+    stderr = ((wk[:, None] * resid**2).sum(dim=0) / dof / sxx).sqrt()  # [3]
+    rel = float(stderr.max() / light.mean().abs().clamp_min(1e-6))
+    return LightFit(light, rel, len(wk), points)
+
+
+def chroma(rgb: Tensor) -> Tensor:
+    """[3] each channel over the mean of the three."""
+    return rgb / rgb.mean().clamp_min(1e-6)
+
+
+def mean_ray_light(T: Tensor, S: Tensor) -> Tensor | None:
+    """The mean of S / (1 - T) [3] over the pixels of T [H, W] and S [H, W, 3] with at least
+    ``MIN_HAZE`` haze; None where there are none."""
+    hazy = (1.0 - T) >= MIN_HAZE  # [H, W]
+    if not bool(hazy.any()):
+        return None
+    return (S[hazy] / (1.0 - T[hazy])[:, None]).mean(dim=0)
+
+
+class LightColourFit(nn.Module):
+    """Makes the fit once, at the freeze, and says what it did. ``done`` is a buffer, so a run
+    resumed after the freeze does not fit again (the gain itself is kept by the medium)."""
+
+    def __init__(self, enabled: bool, step: int) -> None:
+        super().__init__()
+        self.enabled, self.step = enabled, step
+        self.register_buffer("done", torch.tensor(False))
+        self.decisions: list[str | Decision] = []
+        self._done: bool | None = None  # the buffer read once, not at every step
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints from before the fit: not made yet
+        state_dict.setdefault(prefix + "done", self.done.clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._done = None
+
+    def due(self, step: int) -> bool:
+        if not self.enabled or step < self.step:
+            return False
+        if self._done is None:
+            self._done = bool(self.done)
+        return not self._done
+
+    def skip(self, why: str) -> None:
+        """Mark the fit made without applying it, and say why."""
+        self._mark_done()
+        self.decisions.append(Decision(f"light colour fit not applied: {why}", {"light_gain": None}))
+
+    def _mark_done(self) -> None:
+        self.done.fill_(True)
+        self._done = True
+
+    def gain(self, obs: PointObservations | None, model_light: Tensor | None) -> Tensor | None:
+        """The per-channel factor [3] that gives the medium's mean light ``model_light`` [3] the
+        fitted light's colour at its own brightness; None (and a decision saying why) where the
+        fit is not applied."""
+        fit = fit_light(obs) if obs is not None and len(obs.point) else None
+        why = None
+        if fit is None:
+            why = f"fewer than {MIN_POINTS} seed points seen by {MIN_VIEWS} views, or no haze variation"
+        elif fit.rel_stderr > MAX_REL_STDERR:
+            why = f"its standard error is {fit.rel_stderr:.1%} of the light (over {MAX_REL_STDERR:.0%})"
+        elif model_light is None:
+            why = "no pixel has enough haze to read the medium's light on"
+        if why is not None:
+            self.skip(why)
+            return None
+        self._mark_done()
+        gain = (chroma(fit.light) / chroma(model_light.float().cpu())).clamp(*GAIN_RANGE)  # [3]
+        rgb = ", ".join(f"{g:.3f}" for g in gain.tolist())
+        self.decisions.append(
+            Decision(
+                f"light colour fit on {fit.points} seed points ({fit.observations} observations): "
+                f"the medium's light recoloured by ({rgb})",
+                {
+                    "light_gain": gain.tolist(),
+                    "fitted_light": fit.light.tolist(),
+                    "model_light": model_light.tolist(),
+                    "rel_stderr": fit.rel_stderr,
+                },
+            )
+        )
+        return gain
