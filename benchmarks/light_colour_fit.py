@@ -28,7 +28,14 @@ from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
-from pipelines.tridehaze.light_colour_fit import PointObservations, chroma, fit_light, mean_ray_light  # noqa: E402
+from pipelines.tridehaze.light_colour_fit import (  # noqa: E402
+    PointObservations,
+    chroma,
+    fit_light,
+    light_spread,
+    mean_ray_light,
+    ray_light,
+)
 from pipelines.tridehaze.priors import visible_points  # noqa: E402
 
 
@@ -48,7 +55,7 @@ def diagnose(config: Path) -> dict:
     if dm.scene.points is None or len(dm.scene.points) == 0:
         raise SystemExit(f"{config}: the dataset has no seed points")
     pts = dm.scene.points.detach().float().cpu()
-    model_obs, true_obs, model_l, true_l = [], [], [], []
+    model_obs, true_obs, model_l, true_l, rays = [], [], [], [], []
     for i in dm.train_indices:
         cam = dm.camera(i)
         size = (int(cam.height[0]), int(cam.width[0]))
@@ -57,6 +64,7 @@ def diagnose(config: Path) -> dict:
             raise SystemExit(f"{config}: the dataset has no true transmittance and scattering maps")
         out = pipe.render(cam)
         T, tt = out["transmittance"][..., 0].cpu(), true_t[..., 0].cpu()  # [H, W]
+        rays.append(ray_light(T, out["scattering"].cpu()))
         for light, t, s in ((model_l, T, out["scattering"].cpu()), (true_l, tt, true_s.cpu())):
             if (mean := mean_ray_light(t, s)) is not None:
                 light.append(mean)
@@ -68,6 +76,7 @@ def diagnose(config: Path) -> dict:
         "run": str(config.parent),
         "scene": Path(str(run.config.dataset.data)).name,
         "seed": run.config.seed,
+        "light_spread": light_spread(rays),
     }
     for key, parts in (("fit_model_t", model_obs), ("fit_true_t", true_obs)):
         obs = _observations(parts)
@@ -94,11 +103,15 @@ def _blue_error(row: dict, key: str) -> float | None:
     return float(chroma(torch.tensor(row[key]))[2] - chroma(torch.tensor(row["light_true"]))[2])
 
 
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1%}"
+
+
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| scene | seed | chromaticity: true light / model light / fit, model T / fit, true T "
-        "| blue error: model / fit, model T | fit's standard error (model T) | points |",
-        "|---|---|---|---|---|---|",
+        "| blue error: model / fit, model T | fit's standard error (model T) | points | model light's spread |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         chromas = " / ".join(
@@ -107,10 +120,9 @@ def markdown(rows: list[dict]) -> str:
         errs = " / ".join(
             "-" if (e := _blue_error(r, k)) is None else f"{e:+.3f}" for k in ("light_model", "fit_model_t")
         )
-        se = r["fit_model_t_rel_stderr"]
         lines.append(
-            f"| {r['scene']} | {r['seed']} | {chromas} | {errs} | {'-' if se is None else f'{se:.1%}'} "
-            f"| {r['fit_model_t_points'] or '-'} |"
+            f"| {r['scene']} | {r['seed']} | {chromas} | {errs} | {_pct(r['fit_model_t_rel_stderr'])} "
+            f"| {r['fit_model_t_points'] or '-'} | {_pct(r['light_spread'])} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -33,7 +33,7 @@ from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.metrics import psnr
-from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, mean_ray_light
+from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
 from pipelines.tridehaze.light_isotropy import LightIsotropy
 from pipelines.tridehaze.priors import (
     ViewPrior,
@@ -457,15 +457,17 @@ class GaussianPipeline(Pipeline):
             cam = dm.camera(i)
             med = self._medium(cam, self._rasterize(cam, None, self.background))
             T = med.pixel_transmittance()[..., 0].cpu()  # [H, W]
-            if (light := mean_ray_light(T, med.scattering.cpu())) is not None:
-                lights.append(light)
+            lights.append(ray_light(T, med.scattering.cpu()))  # [P, 3]
             if pts is not None and len(pts):
                 vis = visible_points(cam, pts)
                 ids.append(vis.mask.nonzero()[:, 0])
                 colours.append(dm.image(i).cpu()[vis.v, vis.u].float())
                 ts.append(T[vis.v, vis.u])
         obs = PointObservations(torch.cat(ids), torch.cat(colours), torch.cat(ts)) if ids else None
-        gain = self.light_colour.gain(obs, torch.stack(lights).mean(dim=0) if lights else None)
+        means = [x.mean(dim=0) for x in lights if len(x)]  # the mean light of each view
+        gain = self.light_colour.gain(
+            obs, torch.stack(means).mean(dim=0) if means else None, light_spread(lights)
+        )
         if gain is not None:
             self.medium.recolour_light(gain)
 

@@ -24,7 +24,7 @@ def test_on_a_tiny_field_run(tmp_path, monkeypatch):
     assert row["fit_true_t_points"] >= 5 and row["fit_model_t"] is not None
     true_chroma = fit.chroma(torch.tensor(row["light_true"]))
     torch.testing.assert_close(fit.chroma(torch.tensor(row["fit_true_t"])), true_chroma, atol=0.02, rtol=0)
-    assert all(0.0 < c <= 1.0 for c in row["light_model"])
+    assert all(0.0 < c <= 1.0 for c in row["light_model"]) and row["light_spread"] >= 0.0
     table = mod.markdown([row])
     assert "| fit's standard error (model T) |" in table and "| scene | 42 |" in table
     mod.plot([row], tmp_path / "fit.png")

@@ -9,11 +9,14 @@ import torch
 from components.medium.base import FieldBounds, MediumConfig
 from components.medium.fields import TriplaneField
 from pipelines.tridehaze.light_colour_fit import (
+    MAX_LIGHT_SPREAD,
     MAX_REL_STDERR,
     LightColourFit,
     PointObservations,
     chroma,
     fit_light,
+    light_spread,
+    ray_light,
 )
 
 LIGHT = torch.tensor([0.62, 0.70, 0.81])  # a bluish haze light
@@ -58,7 +61,7 @@ def test_the_gain_gives_the_fitted_colour_at_the_medium_s_own_brightness():
     module = LightColourFit(enabled=True, step=10)
     assert not module.due(9) and module.due(10)
     grey = torch.tensor([0.74, 0.73, 0.72])  # the medium's mean light: grey, and dimmer
-    gain = module.gain(_observations(), grey)
+    gain = module.gain(_observations(), grey, spread=0.02)
     assert gain is not None
     recoloured = grey * gain
     torch.testing.assert_close(chroma(recoloured), chroma(LIGHT), atol=0.01, rtol=0)
@@ -74,16 +77,32 @@ def test_a_fit_the_data_do_not_pin_is_not_applied():
     noisy = _observations(noise=0.5, t_range=(0.85, 0.9))  # little haze variation, much noise
     fit = fit_light(noisy)
     assert fit is not None and fit.rel_stderr > MAX_REL_STDERR
-    assert module.gain(noisy, torch.tensor([0.7, 0.7, 0.7])) is None
+    assert module.gain(noisy, torch.tensor([0.7, 0.7, 0.7]), spread=0.02) is None
     assert "not applied" in module.decisions[0].message and module.decisions[0].data["light_gain"] is None
     assert not module.due(1)
     off = LightColourFit(enabled=False, step=0)
     assert not off.due(100)
 
 
+def test_not_applied_where_the_medium_s_light_is_not_one_light():
+    """A light that varies over the rays (a sun's glow, a sky) breaks the fit's one-light
+    assumption: the fit declines, whatever its data say."""
+    T = torch.full((4, 8), 0.5)  # [H, W]
+    even = torch.full((4, 8, 3), 0.35)  # S: every ray's light 0.7
+    assert light_spread([ray_light(T, even)]) == pytest.approx(0.0, abs=1e-6)
+    ramp = torch.linspace(0.2, 0.45, 32).reshape(4, 8, 1).expand(4, 8, 3)  # lights 0.4-0.9
+    spread = light_spread([ray_light(T, ramp)])
+    assert spread > MAX_LIGHT_SPREAD
+    thin = torch.full((4, 8), 0.9)  # 10 % haze: no pixel says anything about the light
+    assert len(ray_light(thin, ramp)) == 0 and light_spread([ray_light(thin, ramp)]) is None
+    module = LightColourFit(enabled=True, step=0)
+    assert module.gain(_observations(), torch.tensor([0.7, 0.7, 0.7]), spread) is None
+    assert "assumes one light" in module.decisions[0].message and not module.due(1)
+
+
 def test_a_resumed_run_does_not_fit_again():
     module = LightColourFit(enabled=True, step=5)
-    module.gain(_observations(), torch.tensor([0.7, 0.7, 0.7]))
+    module.gain(_observations(), torch.tensor([0.7, 0.7, 0.7]), spread=None)
     resumed = LightColourFit(enabled=True, step=5)
     resumed.load_state_dict(module.state_dict())
     assert not resumed.due(6)

@@ -140,6 +140,7 @@ def test_the_light_colour_fit_is_made_once_at_the_freeze_and_logged(
     monkeypatch.setattr(fit, "MIN_POINTS", 5)
     monkeypatch.setattr(fit, "MIN_VIEWS", 2)
     monkeypatch.setattr(fit, "MAX_REL_STDERR", 1.0)
+    monkeypatch.setattr(fit, "MAX_LIGHT_SPREAD", 1.0)
     cfg = _config(
         hazy_scene, tmp_path, device, "--pipeline.light-colour-fit", "--pipeline.medium.backend", backend
     )
