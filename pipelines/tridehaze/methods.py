@@ -41,8 +41,9 @@ def vanilla_gs() -> TrainerConfig:
         "(tri-dehaze-paper) where measured: opaque surfaces, the dark channel as a lower bound, a "
         "longer Stage I, the rendered depth held to the SfM depth and free to move with the haze, "
         "the clean render faded to the haze light where T < 0.15, one medium light for the "
-        "whole scene with a sharper direction model, and a stronger dark-channel bound where that "
-        "light proves the same along every ray (docs/results/medium_recovery.md)."
+        "whole scene with a sharper direction model, a stronger dark-channel bound where that "
+        "light proves the same along every ray, and that light's colour read at the freeze from "
+        "how the seed points' colours change with their haze (docs/results/medium_recovery.md)."
     ),
 )
 def tri_dehaze() -> TrainerConfig:
@@ -67,6 +68,10 @@ def tri_dehaze() -> TrainerConfig:
     but the bound, and the medium would end too dense (session 30). In such a run the fade
     (``composite.clean_fill`` auto) goes to the farthest seen surfaces' colour rather than the haze
     light: with no sky in view, what dense haze hides is more wall (session 32).
+    ``light_colour_fit`` gives that light, at the freeze, the colour the seed points' multi-view
+    observations say (with the run's own T), where it has proved close to one light: the joint
+    fit leaves the colour where it started, and the clean render took the difference as a cast
+    (session 37).
     """
     paper = _paper_pipeline()
     pipeline = replace(
@@ -78,6 +83,7 @@ def tri_dehaze() -> TrainerConfig:
         composite=replace(paper.composite, depth_gradient=True, clean_t0=0.15, clean_fill="auto"),
         medium=replace(paper.medium, light_space="global", light="mlp"),
         lambda_dcp_isotropic=1.0,
+        light_colour_fit=True,
     )
     return TrainerConfig(method_name="tri-dehaze", pipeline=pipeline)
 

@@ -192,8 +192,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """At the freeze, give the medium's light the colour that the seed points' hazy colours say,
     read from how each point's colour changes with its haze across the training views (with the
     model's T; the medium's brightness is kept). The joint fit leaves the light's colour where it
-    started, and the clean render then takes the difference as a cast (pipelines/tridehaze/
-    light_colour_fit.py; docs/results/medium_recovery.md, session 37)."""
+    started, and the clean render then takes the difference as a cast. Not applied where the
+    medium's per-ray light spreads over 5 % (the fit assumes one light) or the fit is uncertain;
+    the decision goes to logs/decisions.jsonl (pipelines/tridehaze/light_colour_fit.py;
+    docs/results/medium_recovery.md, session 37)."""
     input_dehaze: Literal["none", "dcp"] = "none"
     """Dehaze the training views before training: ``dcp`` replaces each by its single-image dark
     channel prior restoration (guided-filter refined T, clamped at 0.05): the restoration-assisted

@@ -29,8 +29,10 @@ def _train(scene: Path, out: Path, steps: int, *extra: str, resume: Path | None 
         "--pipeline.depth-prior", "sfm", "--pipeline.rasterizer.backend", "torch", "--threads", "1",
         "--pipeline.densify.refine-start", "20", "--pipeline.densify.refine-every", "10",
         "--pipeline.densify.grow-grad2d", "1e-9", "--steps-per-save", "10",
-        # nothing reads the light's verdict, so it is not taken (its decision is tested in tests/medium)
+        # nothing reads the light's verdict, so it is not taken, and the light colour fit is off
+        # (both decisions are tested in tests/medium)
         "--pipeline.lambda-dcp-isotropic", "0", "--pipeline.composite.clean-fill", "haze-light",
+        "--pipeline.no-light-colour-fit",
         *extra,
     ])  # fmt: skip
     t = Trainer(cfg, console=Console(quiet=True), resume=resume)
