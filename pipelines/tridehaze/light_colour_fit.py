@@ -164,6 +164,10 @@ class LightColourFit(nn.Module):
         why = None
         if fit is None:
             why = f"fewer than {MIN_POINTS} seed points seen by {MIN_VIEWS} views, or no haze variation"
+        elif bool((fit.light <= 0.0).any()):
+            why = (
+                "the fitted light has a channel at or below zero (the haze's variation contradicts the model)"
+            )
         elif fit.rel_stderr > MAX_REL_STDERR:
             why = f"its standard error is {fit.rel_stderr:.1%} of the light (over {MAX_REL_STDERR:.0%})"
         elif model_light is None:

@@ -80,6 +80,11 @@ def test_a_fit_the_data_do_not_pin_is_not_applied():
     assert module.gain(noisy, torch.tensor([0.7, 0.7, 0.7]), spread=0.02) is None
     assert "not applied" in module.decisions[0].message and module.decisions[0].data["light_gain"] is None
     assert not module.due(1)
+    dark = LightColourFit(enabled=True, step=0)  # colours that darken towards the haze: no light fits
+    assert (
+        dark.gain(_observations(light=torch.tensor([-0.2, 0.5, 0.6])), torch.tensor([0.7] * 3), 0.02) is None
+    )
+    assert "at or below zero" in dark.decisions[0].message
     off = LightColourFit(enabled=False, step=0)
     assert not off.due(100)
 
