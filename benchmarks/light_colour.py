@@ -32,18 +32,8 @@ from reference_views import reference_views  # noqa: E402
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.experiments.tables import fmt_number  # noqa: E402
+from pipelines.tridehaze.light_colour_fit import mean_ray_light  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view  # noqa: E402
-
-MIN_HAZE = 0.3
-"""Pixels with less haze (1 - T) say little about the light."""
-
-
-def _mean_light(T: Tensor, S: Tensor) -> Tensor | None:
-    """Mean of S / (1 - T) [3] over the pixels of T [H, W, 1], S [H, W, 3] with enough haze."""
-    hazy = (1.0 - T[..., 0]) >= MIN_HAZE  # [H, W]
-    if not bool(hazy.any()):
-        return None
-    return (S[hazy] / (1.0 - T[hazy])).mean(dim=0)  # [3]
 
 
 def _psnr(mse: float) -> float:
@@ -64,9 +54,9 @@ def diagnose(config: Path) -> dict:
         out = pipe.render(view.camera)
         errors.append(out["clean"] - dm.clean_image(view.index))  # [H, W, 3]
         true_s = reference_map(dm, REFERENCE_S_KEY, view.index, (view.height, view.width))
-        if true_s is not None and (light := _mean_light(view.true_t, true_s)) is not None:
+        if true_s is not None and (light := mean_ray_light(view.true_t[..., 0], true_s)) is not None:
             true_l.append(light)
-        if (light := _mean_light(out["transmittance"], out["scattering"])) is not None:
+        if (light := mean_ray_light(out["transmittance"][..., 0], out["scattering"])) is not None:
             model_l.append(light)
     if not errors:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")

@@ -33,7 +33,6 @@ from pipelines.tridehaze.light_colour_fit import (  # noqa: E402
     chroma,
     fit_light,
     light_spread,
-    mean_ray_light,
     ray_light,
 )
 from pipelines.tridehaze.priors import visible_points  # noqa: E402
@@ -55,7 +54,7 @@ def diagnose(config: Path) -> dict:
     if dm.scene.points is None or len(dm.scene.points) == 0:
         raise SystemExit(f"{config}: the dataset has no seed points")
     pts = dm.scene.points.detach().float().cpu()
-    model_obs, true_obs, model_l, true_l, rays = [], [], [], [], []
+    model_obs, true_obs, model_rays, true_rays = [], [], [], []
     for i in dm.train_indices:
         cam = dm.camera(i)
         size = (int(cam.height[0]), int(cam.width[0]))
@@ -64,10 +63,8 @@ def diagnose(config: Path) -> dict:
             raise SystemExit(f"{config}: the dataset has no true transmittance and scattering maps")
         out = pipe.render(cam)
         T, tt = out["transmittance"][..., 0].cpu(), true_t[..., 0].cpu()  # [H, W]
-        rays.append(ray_light(T, out["scattering"].cpu()))
-        for light, t, s in ((model_l, T, out["scattering"].cpu()), (true_l, tt, true_s.cpu())):
-            if (mean := mean_ray_light(t, s)) is not None:
-                light.append(mean)
+        model_rays.append(ray_light(T, out["scattering"].cpu()))  # [P, 3]
+        true_rays.append(ray_light(tt, true_s.cpu()))
         vis = visible_points(cam, pts)
         ids, colour = vis.mask.nonzero()[:, 0], dm.image(i).cpu()[vis.v, vis.u].float()
         model_obs.append((ids, colour, T[vis.v, vis.u]))
@@ -76,7 +73,7 @@ def diagnose(config: Path) -> dict:
         "run": str(config.parent),
         "scene": Path(str(run.config.dataset.data)).name,
         "seed": run.config.seed,
-        "light_spread": light_spread(rays),
+        "light_spread": light_spread(model_rays),
     }
     for key, parts in (("fit_model_t", model_obs), ("fit_true_t", true_obs)):
         obs = _observations(parts)
@@ -84,8 +81,8 @@ def diagnose(config: Path) -> dict:
         row[key] = None if fit is None else fit.light.tolist()
         row[key + "_rel_stderr"] = None if fit is None else fit.rel_stderr
         row[key + "_points"] = None if fit is None else fit.points
-    for key, values in (("light_model", model_l), ("light_true", true_l)):
-        mean = _mean(values)
+    for key, rays in (("light_model", model_rays), ("light_true", true_rays)):
+        mean = _mean([x.mean(dim=0) for x in rays if len(x)])  # the mean of the views' means
         row[key] = None if mean is None else mean.tolist()
     return row
 

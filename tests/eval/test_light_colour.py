@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import torch
 
-from tests.eval.diagnosis_script import load_benchmark, run_diagnosis, tiny_field_run
+from pipelines.tridehaze.light_colour_fit import mean_ray_light
+from tests.eval.diagnosis_script import run_diagnosis, tiny_field_run
 
 
-def test_mean_light_reads_only_hazy_pixels(monkeypatch):
-    mod = load_benchmark(monkeypatch, "light_colour")
-    T = torch.tensor([[[0.5], [0.9]]])  # [1, 2, 1]: the second pixel has 10 % haze
+def test_mean_light_reads_only_hazy_pixels():
+    """The script's mean light is the light colour fit's (pipelines/tridehaze/light_colour_fit.py)."""
+    T = torch.tensor([[0.5, 0.9]])  # [1, 2]: the second pixel has 10 % haze
     S = torch.tensor([[[0.3, 0.35, 0.4], [0.5, 0.5, 0.5]]])  # [1, 2, 3]
-    assert torch.allclose(mod._mean_light(T, S), torch.tensor([0.6, 0.7, 0.8]))
-    assert mod._mean_light(torch.ones(1, 2, 1), S) is None
+    assert torch.allclose(mean_ray_light(T, S), torch.tensor([0.6, 0.7, 0.8]))
+    assert mean_ray_light(torch.ones(1, 2), S) is None
 
 
 def test_on_a_tiny_field_run(tmp_path):
