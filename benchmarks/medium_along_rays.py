@@ -16,7 +16,6 @@ Writes OUT.json, OUT.md (one row per run) and OUT.png.
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +26,9 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main  # noqa: E402
-from reference_views import reference_views  # noqa: E402
+from reference_views import reference_views, true_medium_field  # noqa: E402
 
 from components.medium.compositing import pixel_rays  # noqa: E402
-from components.medium.reference import ReferenceField  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
 SAMPLES = 32
@@ -54,10 +52,7 @@ def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
     trained = pipe.medium_field()
-    truth = ReferenceField(
-        replace(pipe.config.medium, backend="reference", reference_scale=(1.0, 1.0)), trained.bounds
-    )
-    truth.bind_scene(dm.scene.root, dm.scene.transform)
+    truth = true_medium_field(pipe, dm)
     od = {"trained": np.zeros(4), "true": np.zeros(4)}
     light = {"trained": [], "true": []}
     pixels = 0

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -28,9 +27,9 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from reference_views import true_medium_field  # noqa: E402
 
 from components.medium.compositing import pixel_rays  # noqa: E402
-from components.medium.reference import ReferenceField  # noqa: E402
 from pipelines.engine.medium_recovery import reference_depth  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
@@ -97,10 +96,7 @@ def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
     trained = pipe.medium_field()
-    truth = ReferenceField(
-        replace(pipe.config.medium, backend="reference", reference_scale=(1.0, 1.0)), trained.bounds
-    )
-    truth.bind_scene(dm.scene.root, dm.scene.transform)
+    truth = true_medium_field(pipe, dm)
     train, test = (_rays(dm, idx, trained.bounds) for idx in (dm.train_indices, dm.test_indices))
     if train is None or test is None:
         raise SystemExit(

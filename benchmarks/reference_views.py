@@ -1,14 +1,17 @@
 """The test views of a generated scene with its true transmittance and depth, for the diagnoses
-that compare a trained run's medium or depth with the truth (medium_start, depth_diagnosis)."""
+that compare a trained run's medium or depth with the truth (medium_start, depth_diagnosis), and
+the generator's own medium beside the trained one (medium_along_rays, medium_capacity)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from torch import Tensor
 
 from components.data.cameras import Cameras
+from components.medium.base import MediumField
+from components.medium.reference import ReferenceField
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_depth, reference_map
 
@@ -36,3 +39,14 @@ def reference_views(dm: DataManager) -> Iterator[ReferenceView]:
         if true_t is None or true_z is None:
             continue
         yield ReferenceView(idx, cam, size[0], size[1], true_t, true_z)
+
+
+def true_medium_field(pipe, dm: DataManager) -> MediumField:
+    """The generator's own medium (extinction and light at scale 1) in the run's frame and in its
+    trained field's box, for comparing the two at the same points."""
+    trained = pipe.medium_field()
+    truth = ReferenceField(
+        replace(pipe.config.medium, backend="reference", reference_scale=(1.0, 1.0)), trained.bounds
+    )
+    truth.bind_scene(dm.scene.root, dm.scene.transform)
+    return truth
