@@ -26,7 +26,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main  # noqa: E402
-from reference_views import reference_views, true_medium_field  # noqa: E402
+from reference_views import march_samples, reference_views, true_medium_field  # noqa: E402
 
 from components.medium.compositing import pixel_rays  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -38,14 +38,9 @@ SAMPLES = 32
 def _march(field, origin, dirs, z) -> tuple[np.ndarray, torch.Tensor]:
     """Optical depth per quarter of the path [4] and the samples' mean light [3] of rays
     origin + t * dirs (dirs [P, 3] with unit camera z) to camera z-depths z [P]."""
-    u = (torch.arange(SAMPLES, dtype=z.dtype) + 0.5) / SAMPLES  # [K]
-    pts = origin + dirs[:, None, :] * (z[:, None] * u)[..., None]  # [P, K, 3]
-    unit = (dirs / dirs.norm(dim=-1, keepdim=True))[:, None, :].expand(-1, SAMPLES, -1)  # [P, K, 3]
-    sample = field(pts.reshape(-1, 3), unit.reshape(-1, 3))
-    step = (z * dirs.norm(dim=-1) / SAMPLES)[:, None]  # [P, 1] path length per sample
-    tau = sample.beta.reshape(-1, SAMPLES) * step  # [P, K]
+    tau, light = march_samples(field, origin, dirs, z, SAMPLES)  # [P, K], [P, K, 3]
     quarters = tau.reshape(len(z), 4, SAMPLES // 4).sum(dim=(0, 2))  # [4]
-    return quarters.double().cpu().numpy(), sample.light.mean(0)
+    return quarters.double().cpu().numpy(), light.reshape(-1, 3).mean(0)
 
 
 def diagnose(config: Path) -> dict:

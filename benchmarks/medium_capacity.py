@@ -27,10 +27,9 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
-from reference_views import true_medium_field  # noqa: E402
+from reference_views import march_samples, reference_views, true_medium_field  # noqa: E402
 
 from components.medium.compositing import pixel_rays  # noqa: E402
-from pipelines.engine.medium_recovery import reference_depth  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
 SAMPLES = 16
@@ -47,14 +46,9 @@ def _rays(dm, indices, bounds) -> tuple[Tensor, Tensor, Tensor] | None:
     """Origins [P, 3], directions [P, 3] (unit camera z) and true z-depths [P] of the views' pixels
     whose true surface is inside the medium's box."""
     parts = []
-    for i in indices:
-        cam = dm.camera(i)
-        size = (int(cam.height[0]), int(cam.width[0]))
-        z = reference_depth(dm, i, size)  # [H, W, 1]
-        if z is None:
-            continue
-        dirs, origin = pixel_rays(cam, size[0], size[1], z.device, z.dtype)  # [H, W, 3], [3]
-        z = z[..., 0]
+    for view in reference_views(dm, indices):
+        z = view.true_z[..., 0]  # [H, W]
+        dirs, origin = pixel_rays(view.camera, view.height, view.width, z.device, z.dtype)  # [H, W, 3], [3]
         inside = bounds.inside(origin + dirs * z[..., None])  # [H, W]
         n = int(inside.sum())
         if n:
@@ -66,22 +60,17 @@ def _rays(dm, indices, bounds) -> tuple[Tensor, Tensor, Tensor] | None:
 
 def transmittance(field, origin: Tensor, dirs: Tensor, z: Tensor) -> Tensor:
     """exp(-optical depth) [P] of rays origin + t * dirs to camera z-depths z, midpoint rule."""
-    u = (torch.arange(SAMPLES, dtype=z.dtype, device=z.device) + 0.5) / SAMPLES  # [K]
-    pts = origin[:, None, :] + dirs[:, None, :] * (z[:, None] * u)[..., None]  # [P, K, 3]
-    unit = (dirs / dirs.norm(dim=-1, keepdim=True))[:, None, :].expand(-1, SAMPLES, -1)  # [P, K, 3]
-    beta = field(pts.reshape(-1, 3), unit.reshape(-1, 3)).beta.reshape(-1, SAMPLES)  # [P, K]
-    step = (z * dirs.norm(dim=-1) / SAMPLES)[:, None]  # [P, 1]
-    return torch.exp(-(beta * step).sum(dim=-1))
+    tau, _ = march_samples(field, origin, dirs, z, SAMPLES)  # [P, K]
+    return torch.exp(-tau.sum(dim=-1))
 
 
-def fit_to_truth(field, rays: tuple[Tensor, Tensor, Tensor], target: Tensor, steps: int) -> float:
-    """Fit ``field`` (in place) to the target transmittance [P] of ``rays``; the last batch's loss."""
-    params = [p for p in field.parameters()]
+def fit_to_truth(field, rays: tuple[Tensor, Tensor, Tensor], target: Tensor, steps: int) -> None:
+    """Fit ``field`` (in place) to the target transmittance [P] of ``rays``."""
+    params = list(field.parameters())
     for p in params:
         p.requires_grad_(True)
     opt = torch.optim.Adam(params, lr=LR)
     gen = torch.Generator().manual_seed(0)
-    loss = torch.tensor(float("nan"))
     with torch.enable_grad():
         for _ in range(steps):
             idx = torch.randint(0, len(target), (BATCH,), generator=gen)
@@ -89,7 +78,6 @@ def fit_to_truth(field, rays: tuple[Tensor, Tensor, Tensor], target: Tensor, ste
             opt.zero_grad()
             loss.backward()
             opt.step()
-    return float(loss.detach())
 
 
 def diagnose(config: Path) -> dict:

@@ -4,9 +4,10 @@ the generator's own medium beside the trained one (medium_along_rays, medium_cap
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 
+import torch
 from torch import Tensor
 
 from components.data.cameras import Cameras
@@ -29,9 +30,10 @@ class ReferenceView:
     true_z: Tensor  # [H, W, 1] camera z-depth in the normalised frame (the run's units)
 
 
-def reference_views(dm: DataManager) -> Iterator[ReferenceView]:
-    """The test views that have both a true T map and a true depth map."""
-    for idx in dm.test_indices:
+def reference_views(dm: DataManager, indices: Iterable[int] | None = None) -> Iterator[ReferenceView]:
+    """The views (``indices``; default the test views) that have both a true T map and a true depth
+    map."""
+    for idx in dm.test_indices if indices is None else indices:
         cam = dm.camera(idx)
         size = (int(cam.height[0]), int(cam.width[0]))
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)
@@ -50,3 +52,14 @@ def true_medium_field(pipe, dm: DataManager) -> MediumField:
     )
     truth.bind_scene(dm.scene.root, dm.scene.transform)
     return truth
+
+
+def march_samples(field, origin: Tensor, dirs: Tensor, z: Tensor, samples: int) -> tuple[Tensor, Tensor]:
+    """Optical depth [P, K] and light [P, K, 3] of ``field`` at ``samples`` midpoints of the rays
+    origin + t * dirs (origin [3] or [P, 3]; dirs [P, 3] with unit camera z) to camera z-depths z [P]."""
+    u = (torch.arange(samples, dtype=z.dtype, device=z.device) + 0.5) / samples  # [K]
+    pts = origin.reshape(-1, 1, 3) + dirs[:, None, :] * (z[:, None] * u)[..., None]  # [P, K, 3]
+    unit = (dirs / dirs.norm(dim=-1, keepdim=True))[:, None, :].expand(-1, samples, -1)  # [P, K, 3]
+    sample = field(pts.reshape(-1, 3), unit.reshape(-1, 3))
+    step = (z * dirs.norm(dim=-1) / samples)[:, None]  # [P, 1] path length per sample
+    return sample.beta.reshape(-1, samples) * step, sample.light.reshape(-1, samples, 3)
