@@ -36,7 +36,7 @@ def vanilla_gs() -> TrainerConfig:
     (
         "Tri-DehazeGS: clean 3D Gaussians and a view-shared tri-plane medium (extinction + "
         "direction-dependent light), ray-marched and composited I = J*T + S; Stage I (the first "
-        "half) fits both with depth and dark-channel priors, Stage II freezes the medium and "
+        "three quarters) fits both with depth and dark-channel priors, Stage II freezes the medium and "
         "compensates the clean branch's gradient by 1/T (MD-TGC). Differs from the paper "
         "(tri-dehaze-paper) where measured: opaque surfaces, the dark channel as a lower bound, a "
         "longer Stage I, the rendered depth held to the SfM depth and free to move with the haze, "
@@ -53,8 +53,9 @@ def tri_dehaze() -> TrainerConfig:
     ``random_background`` keeps the Gaussians from leaving pixels half covered so that the march
     ends in the haze (coverage standing in for haze); ``dcp_bound`` lower-own-light uses the dark
     channel only as the lower bound it is on surfaces without dark pixels, with the medium's own
-    light as the airlight; ``freeze_fraction`` 0.5 fits the medium against a densified scene
-    rather than the seed cloud. The depth holds (``lambda_depth_metric`` 0.05 to the SfM depth's
+    light as the airlight; ``freeze_fraction`` 0.75 fits the medium against a densified scene
+    rather than the seed cloud, and for long enough that the patchy media settle (0.5 until
+    session 39). The depth holds (``lambda_depth_metric`` 0.05 to the SfM depth's
     scale, ``composite.depth_gradient``) end each ray at the surface rather than short of it, which
     puts the sky far, at low transmittance; ``composite.clean_t0`` (the dark channel's t0) then
     shows the haze light there instead of the amplified remainder of the clean colour (session 19);
@@ -63,9 +64,12 @@ def tri_dehaze() -> TrainerConfig:
     The medium light is one light for the whole scene (``light_space`` global), with a direction
     model sharper than SH (``light`` mlp): a light that may vary from cell to cell follows the
     Gaussians' colours, and SH order 1 cannot hold a sun's forward-scattering glow (session 23).
-    ``lambda_dcp_isotropic`` raises the dark channel's weight from 0.1 to 1 at a quarter of the run
-    where that light has proved the same along every ray: nothing then pins the light's brightness
-    but the bound, and the medium would end too dense (session 30). In such a run the fade
+    ``lambda_dcp_isotropic`` raises the dark channel's weight from 0.1 to 1 at half the run
+    (``light_decision_fraction``) where that light has proved the same along every ray: nothing
+    then pins the light's brightness but the bound, and the medium would end too dense (session
+    30). The bound only ever thins the medium, so it holds for the last third of Stage I, not
+    longer: from a quarter of the run to the later freeze it thinned courtyard-dense's medium past
+    the truth (session 39). In such a run the fade
     (``composite.clean_fill`` auto) goes to the farthest seen surfaces' colour rather than the haze
     light: with no sky in view, what dense haze hides is more wall (session 32).
     ``light_colour_fit`` gives that light, at the freeze, the colour the seed points' multi-view
@@ -78,11 +82,12 @@ def tri_dehaze() -> TrainerConfig:
         paper,
         random_background=True,
         dcp_bound="lower-own-light",
-        freeze_fraction=0.5,
+        freeze_fraction=0.75,
         lambda_depth_metric=0.05,
         composite=replace(paper.composite, depth_gradient=True, clean_t0=0.15, clean_fill="auto"),
         medium=replace(paper.medium, light_space="global", light="mlp"),
         lambda_dcp_isotropic=1.0,
+        light_decision_fraction=0.5,
         light_colour_fit=True,
     )
     return TrainerConfig(method_name="tri-dehaze", pipeline=pipeline)
@@ -137,9 +142,9 @@ def tri_dehaze_constant() -> TrainerConfig:
     (
         "Interactive Tri-DehazeGS: 1000 steps, SH degree 1, 8 ray samples on 300 coarse rays, a 32^2 "
         "tri-plane, at most 20k Gaussians with plateau growth, the medium frozen at a fifth of the "
-        "run (step 200; tri-dehaze: half), and the medium chosen by the haze probe (none only for a "
-        "capture it can show to be clear, else the tri-plane; verdict and confidence in "
-        "logs/decisions.jsonl)." + MEASURED
+        "run (step 200; tri-dehaze: three quarters), and the medium chosen by the haze probe "
+        "(none only for a capture it can show to be clear, else the tri-plane; verdict and "
+        "confidence in logs/decisions.jsonl)." + MEASURED
     ),
 )
 def tri_dehaze_fast() -> TrainerConfig:

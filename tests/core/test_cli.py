@@ -154,7 +154,7 @@ def test_overrides_reach_nested_configs():
 def test_paper_preset_is_the_papers_schedule():
     """method.md: 15k steps, the medium frozen (Stage II) at 3000, the dark channel as a two-sided
     target on a black background; tri-dehaze departs from it in exactly the measured settings
-    (sessions 8-12, 19, 23, 30, 32 and 37 of docs/results/medium_recovery.md)."""
+    (sessions 8-12, 19, 23, 30, 32, 37 and 39 of docs/results/medium_recovery.md)."""
     paper, default = parse_args(["tri-dehaze-paper"]), parse_args(["tri-dehaze"])
     assert paper.max_steps == 15_000 and default.max_steps == 3000
     assert scaled_step(paper.pipeline.freeze_step, paper.pipeline.freeze_fraction, paper.max_steps) == 3000
@@ -163,16 +163,17 @@ def test_paper_preset_is_the_papers_schedule():
     measured = {
         "random_background": True,
         "dcp_bound": "lower-own-light",
-        "freeze_fraction": 0.5,
+        "freeze_fraction": 0.75,
         "lambda_depth_metric": 0.05,
         "composite": composite,
         "medium": replace(paper.pipeline.medium, light_space="global", light="mlp"),
         "lambda_dcp_isotropic": 1.0,
+        "light_decision_fraction": 0.5,
         "light_colour_fit": True,
     }
     assert replace(paper.pipeline, **measured) == default.pipeline
     assert (
-        scaled_step(default.pipeline.freeze_step, default.pipeline.freeze_fraction, default.max_steps) == 1500
+        scaled_step(default.pipeline.freeze_step, default.pipeline.freeze_fraction, default.max_steps) == 2250
     )
     short = parse_args(["tri-dehaze-paper", "--max-steps", "5000"])  # the freeze keeps its share
     assert scaled_step(short.pipeline.freeze_step, short.pipeline.freeze_fraction, short.max_steps) == 1000
@@ -184,7 +185,7 @@ def test_fast_preset_keeps_stage_one_at_a_fifth():
     (docs/results/medium_recovery.md, session 12)."""
     fast, default = parse_args(["tri-dehaze-fast"]), parse_args(["tri-dehaze"])
     assert (fast.pipeline.random_background, fast.pipeline.dcp_bound) == (True, "lower-own-light")
-    assert (default.pipeline.freeze_fraction, fast.pipeline.freeze_fraction) == (0.5, 0.2)
+    assert (default.pipeline.freeze_fraction, fast.pipeline.freeze_fraction) == (0.75, 0.2)
     assert scaled_step(fast.pipeline.freeze_step, fast.pipeline.freeze_fraction, fast.max_steps) == 200
 
 

@@ -118,7 +118,7 @@ def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(h
     built = {}
     for freeze, hold in ((3, "0"), (2, "0"), (2, "0.5")):  # the decision is due at step 2 of 6
         cfg = _config(hazy_scene, tmp_path / f"{freeze}-{hold}", device, "--pipeline.freeze-step", str(freeze),
-                      "--pipeline.medium-hold-fraction", hold)  # fmt: skip
+                      "--pipeline.medium-hold-fraction", hold, "--pipeline.light-decision-fraction", "0.25")  # fmt: skip
         trainer = Trainer(cfg, console=Console(quiet=True))
         trainer.setup()
         iso = trainer.pipeline.light_isotropy
@@ -318,8 +318,8 @@ def test_freeze_step_scales_with_run_length(hazy_scene, tmp_path):
     cfg = parse_args(["tri-dehaze", "--data", str(hazy_scene), "--max-steps", "15000"])
     from pipelines.tridehaze.priors import scaled_step
 
-    assert scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, 15000) == 7500
-    assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 500
+    assert scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, 15000) == 11250
+    assert scaled_step(None, cfg.pipeline.freeze_fraction, 1000) == 750
     cfg2 = replace(cfg.pipeline, freeze_step=123)
     assert scaled_step(cfg2.freeze_step, cfg2.freeze_fraction, 1000) == 123
 
