@@ -152,7 +152,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """When the light's spread is judged, as a fraction of the run; it is measured over the second
     half of the steps between the medium's hold and then (earlier, the sunlit and the other
     generated scenes' spreads overlap). Where that falls at or after the freeze (a short Stage I:
-    ``tri-dehaze-fast`` freezes at a fifth), halfway between the hold's end and the freeze."""
+    ``tri-dehaze-fast`` freezes at a fifth), halfway between the hold's end and the freeze. The
+    strong bound acts from here to the freeze and only ever thins the medium, so this also sets
+    its dose (``tri-dehaze``: 0.5 with the freeze at 0.75; docs/results/medium_recovery.md,
+    session 39)."""
     lambda_light: Annotated[float, NonNegative] = 0.0
     """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
     the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
