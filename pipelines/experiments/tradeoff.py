@@ -41,7 +41,7 @@ KNOBS: tuple[Knob, ...] = (
     Knob("rasterizer", "--pipeline.rasterizer.backend", ("cpu", "torch")),
     Knob("medium", "--pipeline.medium.backend", ("triplane", "constant", "none", "auto")),
     Knob("growth", "--pipeline.densify.growth", ("schedule", "plateau")),
-    Knob("freeze-fraction", "--pipeline.freeze-fraction", ("0.5", "0.2")),
+    Knob("freeze-fraction", "--pipeline.freeze-fraction", ("0.75", "0.5", "0.2")),
 )
 """Knobs of issue 8 with their values; the first value of each is the base (tri-dehaze's default)."""
 

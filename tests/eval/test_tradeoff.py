@@ -34,6 +34,32 @@ def test_grid_varies_one_knob_at_a_time():
     assert {v.name: v.max_steps for v in grid(["steps"], combos=False, base_steps=300)}["steps=3000"] == 600
 
 
+def test_each_knobs_first_value_is_the_defaults():
+    """A knob's first value is left off the command line as the base, so it must be what
+    tri-dehaze already uses; else a variant labelled with it would run the default instead."""
+    from tridehaze_plugin.registry import REGISTRY, load_all
+
+    load_all()
+    base = REGISTRY.get("method", "tri-dehaze").make_config()
+    checked = 0
+    for knob in KNOBS:
+        if knob.flag is None or not knob.flag.startswith("--pipeline."):
+            continue
+        value = base.pipeline
+        for part in knob.flag.removeprefix("--pipeline.").replace("-", "_").split("."):
+            value = getattr(value, part)
+        if knob.name == "rasterizer" and value == "auto":
+            value = "cpu"  # what auto picks on the CPU machines the bench runs on
+        same = (
+            value == type(value)(knob.values[0])
+            if isinstance(value, int | float)
+            else str(value) == knob.values[0]
+        )
+        assert same, (knob.name, value, knob.values[0])
+        checked += 1
+    assert checked >= 10
+
+
 def test_pareto_front():
     pts = [
         {"name": "a", "wall_seconds": 10, "psnr": 15.0},
