@@ -3,7 +3,9 @@
 ``tri-dehaze`` raises the dark channel's weight at a quarter of the run where the spread of the
 medium's per-ray light is under ``--pipeline.light-isotropy-cv`` (docs/medium.md). This lists,
 for trained runs, the spread each one logged (logs/decisions.jsonl), the weight it chose, and its
-restoration and T error where td-eval has written them (eval/test.json):
+restoration and T error where td-eval has written them (eval/test.json), and the share of the
+verdict window's pixels that rendered as opaque haze (T under ``--pipeline.light-seen-level``;
+above ``--pipeline.light-seen-share`` a one-light run keeps the weak weight):
 
     python benchmarks/light_isotropy_split.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
 
@@ -41,6 +43,9 @@ def diagnose(config: Path) -> dict:
         "threshold": cfg.pipeline.light_isotropy_cv,
         "light_cv": records[-1]["light_cv"] if records else None,
         "dcp_weight": records[-1]["dcp_weight"] if records else None,
+        "seen_level": cfg.pipeline.light_seen_level,
+        "seen_share": cfg.pipeline.light_seen_share,
+        "opaque_share": records[-1].get(f"opaque_{cfg.pipeline.light_seen_level:g}") if records else None,
         "decision_step": records[-1]["step"] if records else None,
         "restoration_psnr": None,
         "t_mae": None,
@@ -55,11 +60,14 @@ def diagnose(config: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| scene | seed | light spread (cv) | threshold | dark-channel weight | restoration PSNR | T MAE |",
-        "|---|---|---|---|---|---|---|",
+        "| scene | seed | light spread (cv) | threshold | opaque share (T under) | seen share | "
+        "dark-channel weight | restoration PSNR | T MAE |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        opaque = "-" if r["opaque_share"] is None else f"{r['opaque_share']:.3f} ({r['seen_level']:g})"
         cells = [r["scene"], str(r["seed"]), fmt_number(r["light_cv"], 3), fmt_number(r["threshold"], 3),
+                 opaque, fmt_number(r["seen_share"], 2),
                  "no decision" if r["dcp_weight"] is None else f"{r['dcp_weight']:g}",
                  fmt_number(r["restoration_psnr"], 2), fmt_number(r["t_mae"], 3)]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
@@ -73,16 +81,20 @@ def plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     shown = [r for r in rows if r["light_cv"] is not None]
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(shown)), 4))
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(max(6, 0.45 * len(shown)), 6.5), sharex=True)
     for x, r in enumerate(shown):
         strong = r["dcp_weight"] is not None and r["dcp_weight"] >= 1.0
         ax.bar(x, r["light_cv"], color="C2" if strong else "C0")
+        ax2.bar(x, r["opaque_share"] or 0.0, color="C2" if strong else "C0")
     for t in sorted({r["threshold"] for r in shown}):
         ax.axhline(t, color="k", ls="--", lw=0.8)
-    ax.set_xticks(range(len(shown)), [f"{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,
-                  ha="right")  # fmt: skip
-    ax.set_ylabel("spread of the medium's per-ray light (cv)")
-    ax.set_title("green: dark-channel weight raised; blue: kept; dashed: threshold", fontsize=8)
+    for t in sorted({r["seen_share"] for r in shown if r["seen_share"] is not None and r["seen_share"] < 1}):
+        ax2.axhline(t, color="k", ls="--", lw=0.8)
+    ax2.set_xticks(range(len(shown)), [f"{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,
+                   ha="right")  # fmt: skip
+    ax.set_ylabel("spread of the medium's per-ray light (cv)", fontsize=8)
+    ax2.set_ylabel("share of pixels behind opaque haze", fontsize=8)
+    ax.set_title("green: dark-channel weight raised; blue: kept; dashed: thresholds", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

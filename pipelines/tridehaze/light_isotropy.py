@@ -20,6 +20,9 @@ from pipelines.engine.contract import Decision
 
 MIN_HAZE = 0.2
 """Pixels whose rendered 1 - T is below this say little about the light (S / (1 - T) is noise)."""
+OPAQUE_LEVELS = (0.02, 0.05, 0.1, 0.15)
+"""Rendered-T levels under which a pixel counts as seeing the haze light itself (I ~ S), logged at
+the decision as the share of the window's pixels below each."""
 NO_MEASUREMENT = -2.0
 """The ``decided`` buffer's value when no pixel had enough haze in the window (the weight stays weak)."""
 
@@ -34,14 +37,28 @@ class LightIsotropy(nn.Module):
     uninterrupted one would (the decision is kept, not made again)."""
 
     def __init__(
-        self, weak: float, strong: float, threshold: float, window: tuple[int, int], measures: bool = True
+        self,
+        weak: float,
+        strong: float,
+        threshold: float,
+        window: tuple[int, int],
+        measures: bool = True,
+        seen_light: tuple[float, float] = (0.05, 1.0),
     ) -> None:
         super().__init__()
         self.weak, self.strong, self.threshold = weak, strong, threshold
+        self.seen_level, self.seen_share = seen_light
+        """A one-light run keeps the weak weight where more than ``seen_share`` of the window's
+        pixels rendered T under ``seen_level``: those pixels see the haze light itself and pin its
+        brightness, which is what the strong bound would otherwise supply (1.0: never)."""
+        if self.seen_level not in OPAQUE_LEVELS:
+            raise ValueError(f"seen-light level {self.seen_level} is not one of {OPAQUE_LEVELS}")
         self.measures = measures
         """Whether the verdict is taken at all."""
         self.start, self.decision_step = window
         self.register_buffer("sums", torch.zeros(3, dtype=torch.float64))  # count, sum, sum of squares
+        # pixels seen in the window, then those under each of OPAQUE_LEVELS
+        self.register_buffer("opaque", torch.zeros(1 + len(OPAQUE_LEVELS), dtype=torch.float64))
         # -1: not decided yet; NO_MEASUREMENT: decided without one (checkpoints hold finite values only)
         self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # else the cv
         self.decisions: list[str | Decision] = []
@@ -58,6 +75,9 @@ class LightIsotropy(nn.Module):
         light = light.double()
         keep = keep.double()
         self.sums += torch.stack([keep.sum(), (keep * light).sum(), (keep * light * light).sum()])
+        T = 1.0 - haze[..., 0]  # [H, W]
+        below = [(T < level).sum() for level in OPAQUE_LEVELS]
+        self.opaque += torch.stack([T.new_tensor(T.numel()), *below]).double()
 
     def weight(self, step: int) -> float:
         """The dark-channel weight at ``step``: ``weak`` until the decision, then the one decided.
@@ -68,7 +88,7 @@ class LightIsotropy(nn.Module):
         if self._strong is None:
             if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = self.judged_one_light() and self.strong > 0.0
+            self._strong = self.judged_one_light() and self.strong > 0.0 and not self.sees_light()
         return self.strong if self._strong else self.weak
 
     def measured_cv(self) -> float | None:
@@ -83,6 +103,16 @@ class LightIsotropy(nn.Module):
         cv = self.measured_cv()
         return self.measures and cv is not None and cv < self.threshold
 
+    def sees_light(self) -> bool:
+        """Whether the window's pixels saw the haze light itself (opaque haze) often enough to pin
+        its brightness: more than ``seen_share`` of them under ``seen_level``."""
+        return self.opaque_shares()[f"opaque_{self.seen_level:g}"] > self.seen_share
+
+    def opaque_shares(self) -> dict[str, float]:
+        """The share of the window's pixels whose rendered T was under each of ``OPAQUE_LEVELS``."""
+        total, *below = (float(v) for v in self.opaque)
+        return {f"opaque_{level:g}": b / total if total > 0 else 0.0 for level, b in zip(OPAQUE_LEVELS, below)}
+
     def _decide(self, step: int) -> None:
         n, s, ss = (float(v) for v in self.sums)
         cv = None
@@ -92,9 +122,17 @@ class LightIsotropy(nn.Module):
         # no pixel with enough haze: nothing for the bound to correct, and nothing to decide on
         self.decided.fill_(NO_MEASUREMENT if cv is None else cv)
         one_light = cv is not None and cv < self.threshold
-        weight = self.strong if one_light and self.strong > 0.0 else self.weak
+        seen = one_light and self.sees_light()
+        weight = self.strong if one_light and not seen and self.strong > 0.0 else self.weak
         if cv is None:
             text = "no pixel has enough haze to measure the medium's light on"
+        elif seen:
+            share = self.opaque_shares()[f"opaque_{self.seen_level:g}"]
+            text = (
+                f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): one "
+                f"light, but {share:.0%} of the pixels see it through opaque haze (T < {self.seen_level:g}), "
+                "which pins its brightness"
+            )
         elif one_light:
             text = (
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): "
@@ -105,7 +143,7 @@ class LightIsotropy(nn.Module):
         self.decisions.append(
             Decision(
                 f"{text}; dark-channel weight {weight:g} from step {step}",
-                {"light_cv": cv, "dcp_weight": weight},
+                {"light_cv": cv, "dcp_weight": weight, **self.opaque_shares()},
             )
         )
 
@@ -113,5 +151,6 @@ class LightIsotropy(nn.Module):
         # checkpoints from before this module: not decided yet, nothing collected
         state_dict.setdefault(prefix + "sums", self.sums.clone())
         state_dict.setdefault(prefix + "decided", self.decided.clone())
+        state_dict.setdefault(prefix + "opaque", self.opaque.clone())
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._strong = None

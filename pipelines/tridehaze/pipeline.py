@@ -148,6 +148,14 @@ class GaussianPipelineConfig(PipelineConfig):
     Measured: 0.007-0.014 on real photos hazed with one light, 0.02-0.06 on the generated scenes
     without a sun, 0.07-0.16 on the sunlit ones, where a strong bound costs 2-6 dB: 0.03 keeps
     a margin of 2.4x below the sunlit scenes."""
+    light_seen_share: Annotated[float, Range(0.0, 1.0)] = 1.0
+    """A run judged one light keeps the weak dark-channel weight where more than this share of the
+    verdict window's pixels render as opaque haze (T under ``light-seen-level``): there the photos
+    show the haze light itself and pin its brightness, and the strong bound would only thin the
+    medium (dense haze hiding walls; docs/results/medium_recovery.md, session 40). The fill of
+    ``composite.clean-fill auto`` still follows the one-light verdict. 1.0: never."""
+    light_seen_level: Literal[0.02, 0.05, 0.1, 0.15] = 0.05
+    """The rendered T under which a pixel counts as seeing the haze light (``light-seen-share``)."""
     light_decision_fraction: Annotated[float, Range(0.0, 1.0)] = 0.25
     """When the light's spread is judged, as a fraction of the run; it is measured over the second
     half of the steps between the medium's hold and then (earlier, the sunlit and the other
@@ -351,6 +359,7 @@ class GaussianPipeline(Pipeline):
             cfg.light_isotropy_cv,
             window,
             measures=read and decide < self.freeze_step,
+            seen_light=(cfg.light_seen_level, cfg.light_seen_share),
         )
 
     def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:

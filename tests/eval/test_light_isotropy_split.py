@@ -16,6 +16,10 @@ def test_rows_follow_each_runs_decision(tmp_path):
             scene, tmp_path / name, "--pipeline.freeze-step", "6", "--pipeline.light-isotropy-cv", threshold,
             steps=8,
         )  # fmt: skip  # the decision at step 2, inside Stage I
+    configs["gated"] = train_tiny(
+        scene, tmp_path / "gated", "--pipeline.freeze-step", "6", "--pipeline.light-isotropy-cv", "1.0",
+        "--pipeline.light-seen-share", "0.0", "--pipeline.light-seen-level", "0.15", steps=8,
+    )  # fmt: skip  # one light, and gated by any pixel under T 0.15
     out = tmp_path / "split"
     run_diagnosis("light_isotropy_split.py", list(configs.values()), out)
     rows = {r["run"]: r for r in json.loads(out.with_suffix(".json").read_text())}
@@ -27,5 +31,9 @@ def test_rows_follow_each_runs_decision(tmp_path):
         assert len(logged) == 1 and row["light_cv"] == logged[0]["light_cv"]
         assert row["dcp_weight"] == weight and row["decision_step"] == logged[0]["step"]
         assert row["restoration_psnr"] is None  # no td-eval ran
+        assert row["opaque_share"] == logged[0]["opaque_0.05"] and 0.0 <= row["opaque_share"] <= 1.0
+    gated = rows[str(configs["gated"].parent)]
+    assert gated["seen_share"] == 0.0 and gated["seen_level"] == 0.15
+    assert gated["dcp_weight"] == (0.1 if gated["opaque_share"] > 0.0 else 1.0)
     assert out.with_suffix(".png").stat().st_size > 0
     assert "| scene | seed | light spread (cv)" in out.with_suffix(".md").read_text()

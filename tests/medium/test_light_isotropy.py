@@ -62,7 +62,8 @@ def test_a_light_that_varies_by_direction_keeps_the_weak_weight():
     iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     light = torch.linspace(0.5, 0.9, 64).reshape(8, 8)  # cv ~0.17, a sun on one side
     assert _run(light, range(8), iso) == [0.1] * 8
-    assert iso.decisions[0].data == {"light_cv": pytest.approx(0.17, abs=0.01), "dcp_weight": 0.1}
+    data = {k: v for k, v in iso.decisions[0].data.items() if not k.startswith("opaque_")}
+    assert data == {"light_cv": pytest.approx(0.17, abs=0.01), "dcp_weight": 0.1}
     assert (
         "varies by 16.8%" in iso.decisions[0].message and "weight 0.1 from step 4" in iso.decisions[0].message
     )
@@ -132,3 +133,57 @@ def test_checkpoints_from_before_the_module_load():
     iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.065, window=(0, 4))
     iso.load_state_dict(old)
     assert float(iso.decided) == -1.0 and float(iso.sums[0]) == 0.0
+
+
+def _opaque_in_part(share: float, t_opaque: float = 0.01) -> MediumRender:
+    """An even light (0.6) over 8x8 pixels, ``share`` of them behind opaque haze (T ``t_opaque``)."""
+    T = torch.full((8, 8, 1), 0.5)  # [H, W, 1]
+    T.view(-1)[: round(share * 64)] = t_opaque
+    S = 0.6 * (1.0 - T).expand(8, 8, 3)  # [H, W, 3]
+    return MediumRender(transmittance=T, scattering=S, end_depth=torch.ones_like(T))
+
+
+def _decide_on(med: MediumRender, **kwargs) -> LightIsotropy:
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), **kwargs)
+    for step in range(5):
+        iso.observe(step, med)
+        iso.weight(step)
+    return iso
+
+
+def test_the_opaque_shares_are_logged_with_the_decision():
+    iso = _decide_on(_opaque_in_part(0.25))
+    data = iso.decisions[0].data
+    assert data["opaque_0.02"] == pytest.approx(0.25) and data["opaque_0.15"] == pytest.approx(0.25)
+    assert data["dcp_weight"] == 1.0  # not gated by default (seen share 1.0)
+    json.dumps(data, allow_nan=False)
+
+
+def test_a_one_light_run_that_sees_its_light_keeps_the_weak_weight():
+    """Where opaque haze shows the light itself, the photos pin its brightness: no strong bound,
+    but the run is still judged one light (the fill reads that)."""
+    seen = _decide_on(_opaque_in_part(0.4), seen_light=(0.05, 0.2))
+    assert seen.weight(4) == 0.1 and seen.judged_one_light() and seen.sees_light()
+    assert "see it through opaque haze" in seen.decisions[0].message
+    assert seen.decisions[0].data["dcp_weight"] == 0.1
+    few = _decide_on(_opaque_in_part(0.1), seen_light=(0.05, 0.2))  # under the share: strong
+    assert few.weight(4) == 1.0 and not few.sees_light()
+    thin = _decide_on(_opaque_in_part(0.4, t_opaque=0.08), seen_light=(0.05, 0.2))  # T above the level
+    assert thin.weight(4) == 1.0
+    assert _decide_on(_opaque_in_part(0.4, t_opaque=0.08), seen_light=(0.1, 0.2)).weight(4) == 0.1
+
+
+def test_the_seen_light_gate_survives_a_resume():
+    first = _decide_on(_opaque_in_part(0.4), seen_light=(0.05, 0.2))
+    after = LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.05, 0.2))
+    after.load_state_dict(first.state_dict())
+    assert after.weight(6) == 0.1 and not after.decisions
+    old = {k: v for k, v in first.state_dict().items() if k != "opaque"}  # a checkpoint from before
+    before = LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.05, 0.2))
+    before.load_state_dict(old)
+    assert before.weight(6) == 1.0  # decided as it was then: nothing measured, nothing gated
+
+
+def test_an_unknown_seen_level_is_refused():
+    with pytest.raises(ValueError, match="seen-light level"):
+        LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.07, 0.2))
