@@ -91,10 +91,6 @@ class LightIsotropy(nn.Module):
             self._strong = self.judged_one_light() and self.strong > 0.0 and not self.sees_light()
         return self.strong if self._strong else self.weak
 
-    def strong_at(self, step: int) -> bool:
-        """Whether ``step`` is under the strong weight (after a one-light verdict that raised it)."""
-        return self.weight(step) == self.strong and self.strong != self.weak
-
     def measured_cv(self) -> float | None:
         """The light's spread the decision was made on; None before the decision or where no
         pixel had enough haze to measure it."""

@@ -156,12 +156,6 @@ class GaussianPipelineConfig(PipelineConfig):
     ``composite.clean-fill auto`` still follows the one-light verdict. 1.0: never."""
     light_seen_level: Literal[0.02, 0.05, 0.1, 0.15] = 0.05
     """The rendered T under which a pixel counts as seeing the haze light (``light-seen-share``)."""
-    strong_bound_floor: Annotated[float, Range(0.0, 1.0)] = 0.0
-    """Under the strong dark-channel weight, the own-light bound is left out on pixels where it is
-    below this. Where a pixel shows the haze light itself (opaque haze, I ~ L) the bound is
-    1 - omega, which is nothing but its own margin: it lifts T there to about 1 - omega = 0.05
-    against a true 0.01 and so thins the medium along those rays (docs/results/medium_recovery.md,
-    session 40). 0: the bound everywhere."""
     light_decision_fraction: Annotated[float, Range(0.0, 1.0)] = 0.25
     """When the light's spread is judged, as a fraction of the run; it is measured over the second
     half of the steps between the medium's hold and then (earlier, the sunlit and the other
@@ -535,8 +529,6 @@ class GaussianPipeline(Pipeline):
             t_prior, mask = prior.t_dcp, None
             if cfg.dcp_bound == "lower-own-light":
                 t_prior, mask = self._own_light_bound(target, med)
-                if cfg.strong_bound_floor > 0 and self.light_isotropy.strong_at(step):
-                    mask = mask & (t_prior >= cfg.strong_bound_floor)  # [H, W]
             lower = cfg.dcp_bound != "two-sided"
             weight = T.detach() if cfg.dcp_weighting == "transmittance" else None
             dcp = dcp_transmittance_loss(
