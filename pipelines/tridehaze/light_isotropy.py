@@ -111,7 +111,10 @@ class LightIsotropy(nn.Module):
     def opaque_shares(self) -> dict[str, float]:
         """The share of the window's pixels whose rendered T was under each of ``OPAQUE_LEVELS``."""
         total, *below = (float(v) for v in self.opaque)
-        return {f"opaque_{level:g}": b / total if total > 0 else 0.0 for level, b in zip(OPAQUE_LEVELS, below)}
+        return {
+            f"opaque_{level:g}": b / total if total > 0 else 0.0
+            for level, b in zip(OPAQUE_LEVELS, below, strict=True)
+        }
 
     def _decide(self, step: int) -> None:
         n, s, ss = (float(v) for v in self.sums)
