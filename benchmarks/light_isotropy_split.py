@@ -27,6 +27,7 @@ from bench_output import diagnose_runs_main  # noqa: E402
 
 from pipelines.engine.run_config import load_config  # noqa: E402
 from pipelines.experiments.tables import fmt_number  # noqa: E402
+from pipelines.tridehaze.methods import tri_dehaze  # noqa: E402
 
 
 def diagnose(config: Path) -> dict:
@@ -88,13 +89,16 @@ def plot(rows: list[dict], path: Path) -> None:
         ax2.bar(x, r["opaque_share"] or 0.0, color="C2" if strong else "C0")
     for t in sorted({r["threshold"] for r in shown}):
         ax.axhline(t, color="k", ls="--", lw=0.8)
-    for t in sorted({r["seen_share"] for r in shown if r["seen_share"] is not None and r["seen_share"] < 1}):
-        ax2.axhline(t, color="k", ls="--", lw=0.8)
+    preset = tri_dehaze().pipeline.light_seen_share
+    ax2.axhline(preset, color="k", ls="--", lw=0.8)
+    for t in sorted({r["seen_share"] for r in shown if r["seen_share"] is not None} - {preset, 1.0}):
+        ax2.axhline(t, color="0.5", ls=":", lw=0.8)
     ax2.set_xticks(range(len(shown)), [f"{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,
                    ha="right")  # fmt: skip
     ax.set_ylabel("spread of the medium's per-ray light (cv)", fontsize=8)
     ax2.set_ylabel("share of pixels behind opaque haze", fontsize=8)
-    ax.set_title("green: dark-channel weight raised; blue: kept; dashed: thresholds", fontsize=8)
+    ax.set_title("green: dark-channel weight raised; blue: kept; dashed: tri-dehaze's thresholds (dotted: a run's "
+                 "own seen share)", fontsize=8)  # fmt: skip
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

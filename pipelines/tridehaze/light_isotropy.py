@@ -7,7 +7,10 @@ dark-channel bound corrects that. Where the light depends on the direction (sunl
 forward-scattering haze), the sky and the sun's side show it and the photos do pin it; a strong
 bound there only thins the field along the sky and brightens the light (session 28). Which case
 a scene is shows in the medium's own light a few hundred steps into Stage I: the spread of its
-per-ray light (S / (1 - T)) over the pixels it scatters into.
+per-ray light (S / (1 - T)) over the pixels it scatters into. Dense haze is the exception: its
+opaque pixels show the light itself (I ~ L), which pins the brightness, and there the bound is only
+its own margin (T >= 1 - omega against a true ~0), so it thins the medium; the share of such
+pixels over the same window holds a one-light run at the weak weight (session 40).
 """
 
 from __future__ import annotations
