@@ -39,6 +39,7 @@ def diagnose(config: Path) -> dict:
         records = [r for r in map(json.loads, log.read_text().splitlines()) if "light_cv" in r]
     row = {
         "scene": Path(str(cfg.dataset.data)).name,
+        "data": str(Path(str(cfg.dataset.data)).parent.name),
         "run": str(run_dir),
         "seed": cfg.seed,
         "threshold": cfg.pipeline.light_isotropy_cv,
@@ -61,13 +62,13 @@ def diagnose(config: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| scene | seed | light spread (cv) | threshold | opaque share (T under) | seen share | "
+        "| scene | set | seed | light spread (cv) | threshold | opaque share (T under) | seen share | "
         "dark-channel weight | restoration PSNR | T MAE |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         opaque = "-" if r["opaque_share"] is None else f"{r['opaque_share']:.3f} ({r['seen_level']:g})"
-        cells = [r["scene"], str(r["seed"]), fmt_number(r["light_cv"], 3), fmt_number(r["threshold"], 3),
+        cells = [r["scene"], r["data"], str(r["seed"]), fmt_number(r["light_cv"], 3), fmt_number(r["threshold"], 3),
                  opaque, fmt_number(r["seen_share"], 2),
                  "no decision" if r["dcp_weight"] is None else f"{r['dcp_weight']:g}",
                  fmt_number(r["restoration_psnr"], 2), fmt_number(r["t_mae"], 3)]  # fmt: skip
@@ -93,7 +94,7 @@ def plot(rows: list[dict], path: Path) -> None:
     ax2.axhline(preset, color="k", ls="--", lw=0.8)
     for t in sorted({r["seen_share"] for r in shown if r["seen_share"] is not None} - {preset, 1.0}):
         ax2.axhline(t, color="0.5", ls=":", lw=0.8)
-    ax2.set_xticks(range(len(shown)), [f"{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,
+    ax2.set_xticks(range(len(shown)), [f"{r['data']}/{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,
                    ha="right")  # fmt: skip
     ax.set_ylabel("spread of the medium's per-ray light (cv)", fontsize=8)
     ax2.set_ylabel("share of pixels behind opaque haze", fontsize=8)

@@ -36,4 +36,4 @@ def test_rows_follow_each_runs_decision(tmp_path):
     assert gated["seen_share"] == 0.0 and gated["seen_level"] == 0.15
     assert gated["dcp_weight"] == (0.1 if gated["opaque_share"] > 0.0 else 1.0)
     assert out.with_suffix(".png").stat().st_size > 0
-    assert "| scene | seed | light spread (cv)" in out.with_suffix(".md").read_text()
+    assert "| scene | set | seed | light spread (cv)" in out.with_suffix(".md").read_text()
