@@ -91,7 +91,7 @@ class LightIsotropy(nn.Module):
         if self._strong is None:
             if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = self.judged_one_light() and self.strong > 0.0 and not self.sees_light()
+            self._strong = self._raises()
         return self.strong if self._strong else self.weak
 
     def measured_cv(self) -> float | None:
@@ -109,7 +109,15 @@ class LightIsotropy(nn.Module):
     def sees_light(self) -> bool:
         """Whether the window's pixels saw the haze light itself (opaque haze) often enough to pin
         its brightness: more than ``seen_share`` of them under ``seen_level``."""
-        return self.opaque_shares()[f"opaque_{self.seen_level:g}"] > self.seen_share
+        return self.seen_light_share() > self.seen_share
+
+    def seen_light_share(self) -> float:
+        """The share of the window's pixels whose rendered T was under ``seen_level``."""
+        return self.opaque_shares()[f"opaque_{self.seen_level:g}"]
+
+    def _raises(self) -> bool:
+        """Whether the decision raises the weight: one light, not seen through opaque haze."""
+        return self.judged_one_light() and not self.sees_light() and self.strong > 0.0
 
     def opaque_shares(self) -> dict[str, float]:
         """The share of the window's pixels whose rendered T was under each of ``OPAQUE_LEVELS``."""
@@ -129,14 +137,13 @@ class LightIsotropy(nn.Module):
         self.decided.fill_(NO_MEASUREMENT if cv is None else cv)
         one_light = cv is not None and cv < self.threshold
         seen = one_light and self.sees_light()
-        weight = self.strong if one_light and not seen and self.strong > 0.0 else self.weak
+        weight = self.strong if self._raises() else self.weak
         if cv is None:
             text = "no pixel has enough haze to measure the medium's light on"
         elif seen:
-            share = self.opaque_shares()[f"opaque_{self.seen_level:g}"]
             text = (
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): one "
-                f"light, but {share:.0%} of the pixels see it through opaque haze (T < {self.seen_level:g}), "
+                f"light, but {self.seen_light_share():.0%} of the pixels see it through opaque haze (T < {self.seen_level:g}), "
                 "which pins its brightness"
             )
         elif one_light:
