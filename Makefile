@@ -23,8 +23,10 @@ $(STAMP): pyproject.toml Makefile
 demo: $(STAMP)
 	$(BIN)/td-train tri-dehaze --max-steps 1500 --output-dir outputs
 
+# worker processes (pytest-xdist), one per CPU, each with one thread (tests/conftest.py); the Ray
+# cluster tests share one worker (--dist loadgroup)
 test: $(STAMP) browser-deps
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadgroup
 
 # Debian chromium + playwright-core for the viewer's real-browser test (installed only when missing)
 browser-deps:

@@ -3,6 +3,11 @@
 ``--device cuda`` runs the method tests (pipeline, medium, compositing, gradient policies, losses,
 stability) with their tensors and training runs on the GPU, so anything CPU-only by accident (a
 tensor made on the default device, a numpy round trip) fails there; the default, cpu, is what CI runs.
+
+The suite runs in parallel worker processes (pytest-xdist, ``-n auto`` in ``make test``), each
+test process and every CLI process it starts with one torch / OpenMP thread: two workers with two
+threads each on two cores cost more than they gain (benchmarks/suite_workers.py).
+``TD_TEST_THREADS=default`` leaves the threads to torch (for that benchmark).
 """
 
 from __future__ import annotations
@@ -10,8 +15,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import pytest
-import torch
+ONE_THREAD = os.environ.get("TD_TEST_THREADS", "1") != "default"
+if ONE_THREAD:
+    os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported; inherited by the CLI processes
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("TRIDEHAZE_SHARED", REPO.parent / "shared"))
@@ -28,6 +37,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    if ONE_THREAD:
+        torch.set_num_threads(1)  # in case torch was imported before this file
     _device(config)  # a bad --device stops the run before collection: a GPU run must not pass on cpu
 
 

@@ -26,6 +26,10 @@ except ImportError:  # a failure in CI (make test installs the cluster extra), a
         pytest.fail("Ray missing in CI: `make test` must install the cluster extra", pytrace=False)
     pytest.skip("the cluster extra is not installed (pip install -e '.[cluster]')", allow_module_level=True)
 
+pytestmark = pytest.mark.xdist_group("ray")
+"""One xdist worker runs these in turn (``--dist loadgroup``): Ray's per-node default ports (client
+server, agents) would clash between two clusters started at once on one machine."""
+
 TINY = ("--pipeline.warmup-steps 3 --pipeline.freeze-step 3 --pipeline.medium-hold-fraction 0 "
         "--pipeline.rasterizer.backend torch --pipeline.model.sh-degree 1")  # fmt: skip
 
