@@ -29,10 +29,13 @@ def run_diagnosis(script: str, configs: list[Path], out: Path) -> dict:
 
 
 def load_benchmark(monkeypatch, name: str) -> ModuleType:
-    """Import ``benchmarks/<name>.py`` (its sibling modules on the path for this test only)."""
+    """Import ``benchmarks/<name>.py`` (its sibling modules on the path for this test only). The
+    module is in ``sys.modules`` while it runs, as an import puts it: its dataclasses resolve their
+    string annotations there (it passed only where an earlier test had imported the module)."""
     monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
     spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, name, mod)
     spec.loader.exec_module(mod)
     return mod
 
