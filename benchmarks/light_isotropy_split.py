@@ -91,7 +91,8 @@ def plot(rows: list[dict], path: Path) -> None:
     for t in sorted({r["threshold"] for r in shown}):
         ax.axhline(t, color="k", ls="--", lw=0.8)
     preset = tri_dehaze().pipeline.light_seen_share
-    ax2.axhline(preset, color="k", ls="--", lw=0.8)
+    if preset < 1.0:  # 1.0: the preset never gates (session 41)
+        ax2.axhline(preset, color="k", ls="--", lw=0.8)
     for t in sorted({r["seen_share"] for r in shown if r["seen_share"] is not None} - {preset, 1.0}):
         ax2.axhline(t, color="0.5", ls=":", lw=0.8)
     ax2.set_xticks(range(len(shown)), [f"{r['data']}/{r['scene']} s{r['seed']}" for r in shown], fontsize=6, rotation=60,

@@ -78,7 +78,7 @@ ABLATIONS = [
     ("--pipeline.medium.light", "axial"),
     ("--pipeline.sky-shell", "500"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
-    ("--pipeline.light-seen-share", "1"),
+    ("--pipeline.light-seen-share", "0.2"),
     ("--pipeline.medium-ignores-backdrop",),
     ("--pipeline.light-colour-fit",),
 ]
