@@ -156,12 +156,49 @@ def _to_primitive(value: Any) -> Any:
     raise TypeError(f"cannot serialise config value of type {type(value).__name__}: {value!r}")
 
 
+_RETIRED: dict[type, dict[str, Any]] = {}
+
+
+def retire_options(cls: type, **neutral: Any) -> None:
+    """Declare options removed from config class ``cls``, each with the value that meant "off".
+
+    Every run trained while an option existed wrote it to its config.yml; reading such a file, a
+    retired key at its neutral value is dropped (the run behaved as the code does now), and any
+    other value is an error naming the option: the run used something this code no longer has.
+    """
+    _RETIRED.setdefault(cls, {}).update(neutral)
+
+
+def _retired(cls: type) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for klass in reversed(cls.__mro__):
+        out.update(_RETIRED.get(klass, {}))
+    return out
+
+
+def _drop_retired(cls: type, data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` without the retired keys at their neutral value (see :func:`retire_options`)."""
+    retired = _retired(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in sorted(k for k in data if k in retired and k not in names):
+        if data[key] != retired[key]:
+            raise ConfigError(
+                f"config key {key}: {shown(data[key])} is an option this version no longer has (retired; "
+                f"off is {shown(retired[key])})",
+                where=where,
+                fix=f"set it to {shown(retired[key])} to load the run as if trained without it, or use a "
+                f"checkout from before its removal (git log -S '{key}')",
+            )
+    return {k: v for k, v in data.items() if k in names or k not in retired}
+
+
 def merge_dict(default: Any, data: dict[str, Any], where: str = "config") -> Any:
     """Return a copy of dataclass ``default`` with ``data`` merged in, checking every type."""
     if not isinstance(data, dict):
         raise ConfigError(f"expected a mapping, got {type(data).__name__}", where=where)
     hints = _hints(type(default))
     names = {f.name for f in dataclasses.fields(default)}
+    data = _drop_retired(type(default), data, where)
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(

@@ -36,7 +36,7 @@ from torch.nn import functional as F
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
 from components.medium.pixel_readout import ReadoutGrid, read_pixels
-from tridehaze_plugin.config import Positive, Range, check_numbers
+from tridehaze_plugin.config import Positive, Range, check_numbers, retire_options
 
 OPEN_SKY_COVERAGE = 0.5
 """Pixels covered less than this march their coarse rays to the far bound for the sky light; the
@@ -120,6 +120,12 @@ class CompositeConfig:
     def check_values(self, prefix: str = "--pipeline.composite.") -> None:
         """The declared ranges, also for a config built in code rather than parsed."""
         check_numbers(self, prefix.removeprefix("--"))
+
+
+# tried and removed; in the config.yml of runs trained while they existed (see retire_options)
+retire_options(
+    CompositeConfig, near_gradient=0.0, per_gaussian=False, jitter=False
+)  # 6c6e05e, f7ef174, 9e68f6f
 
 
 @dataclass

@@ -50,7 +50,7 @@ from pipelines.tridehaze.priors import (
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.warmup import warmup_depths
-from tridehaze_plugin.config import NonNegative, Range, RegistryChoice
+from tridehaze_plugin.config import NonNegative, Range, RegistryChoice, retire_options
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
@@ -244,6 +244,18 @@ class GaussianPipelineConfig(PipelineConfig):
     ) -> GaussianPipeline:
         """``training=False`` (reloading a run to render it) skips the per-view priors and warm-up."""
         return GaussianPipeline(self, datamanager, seed, max_steps, training)
+
+
+# options tried and removed (docs/results/medium_recovery.md), still in the config.yml of runs trained
+# while they existed: loadable where they were off
+retire_options(
+    GaussianPipelineConfig,
+    lambda_coverage=0.0,  # be6cacd
+    lambda_opacity_entropy=0.0,  # 11e7734
+    medium_residual_blur=0.0,  # 759f02e
+    medium_warmup_fraction=0.0,  # c1b3741
+    strong_bound_floor=0.0,  # 2745c37
+)
 
 
 @dataclass(frozen=True)

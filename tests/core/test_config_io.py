@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.engine.config import TrainerConfig
-from pipelines.engine.run_config import load_config, save_config
+from pipelines.engine.run_config import HEADER_KEYS, load_config, save_config
 from tridehaze_plugin.config import merge_dict, read_yaml_mapping, to_dict, validate
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import load_all
@@ -84,3 +84,57 @@ def test_load_config_missing_and_unknown_method(tmp_path):
     p.write_text("method_name: no-such-method\n")
     with pytest.raises(ConfigError, match="unknown method 'no-such-method'"):
         load_config(p)
+
+
+def test_a_retired_option_at_its_off_value_still_loads(tmp_path):
+    """Runs trained while an option existed carry it in config.yml: at the value that meant off
+    they load as before; with any other value the error names the option and what to do."""
+    cfg = load_all().get("method", "tri-dehaze").make_config()
+    path = tmp_path / "config.yml"
+    save_config(cfg, path)
+    text = path.read_text()
+    assert "strong_bound_floor" not in text and "per_gaussian" not in text  # gone from new files
+    data = read_yaml_mapping(path)
+    for key in HEADER_KEYS:
+        data.pop(key, None)
+    data["pipeline"]["strong_bound_floor"] = 0.0
+    data["pipeline"]["composite"]["per_gaussian"] = False
+    back = merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+    assert back == cfg
+
+    data["pipeline"]["strong_bound_floor"] = 0.1
+    with pytest.raises(ConfigError) as err:
+        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data, where="config.yml")
+    line = err.value.one_line()
+    assert "strong_bound_floor: 0.1" in line and "config.yml.pipeline" in line
+    assert "set it to 0.0" in line and "git log -S 'strong_bound_floor'" in line
+    data["pipeline"]["strong_bound_floor"] = 0.0
+    data["pipeline"]["composite"]["per_gaussian"] = True
+    with pytest.raises(ConfigError, match="per_gaussian: True is an option this version no longer has"):
+        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+    # a key never declared retired is still unknown
+    data["pipeline"]["composite"]["per_gaussian"] = False
+    data["pipeline"]["strong_bound_flor"] = 0.0
+    with pytest.raises(ConfigError, match="unknown config key.*strong_bound_flor"):
+        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+
+
+def test_retired_options_are_inherited_and_never_shadow_a_field():
+    """A subclass sees its bases' retired options; a name that is a field again is merged as one."""
+    from dataclasses import dataclass
+
+    from tridehaze_plugin.config import retire_options
+
+    @dataclass
+    class Base:
+        a: int = 1
+
+    @dataclass
+    class Child(Base):
+        b: float = 0.5
+
+    retire_options(Base, old=0)
+    retire_options(Child, b=0.0)  # retired once, a field again later
+    assert merge_dict(Child(), {"old": 0, "b": 2.0}) == Child(b=2.0)
+    with pytest.raises(ConfigError, match="old: 3"):
+        merge_dict(Child(), {"old": 3})
