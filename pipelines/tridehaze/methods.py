@@ -73,9 +73,9 @@ def tri_dehaze() -> TrainerConfig:
     (``composite.clean_fill`` auto) goes to the farthest seen surfaces' colour rather than the haze
     light: with no sky in view, what dense haze hides is more wall (session 32). The gate that
     keeps the weak bound where a fifth of the pixels render opaque haze (``light_seen_share``
-    0.2) gained on generated dense haze but lost 0.6-1.0 dB on every hazed real photo set, where
-    the model renders bright surfaces as opaque haze (true share 0-2 %, read 36-54 %): it stays
-    an option, off here (session 41).
+    0.2) gained on generated dense haze but lost 0.1-1.0 dB on every hazed beer set at both seeds
+    (statue a tie), where the model renders bright surfaces as opaque haze (true share 0-2 %,
+    read 36-54 %): it stays an option, off here (session 41).
     ``light_colour_fit`` gives that light, at the freeze, the colour the seed points' multi-view
     observations say (with the run's own T), where it has proved close to one light: the joint
     fit leaves the colour where it started, and the clean render took the difference as a cast
