@@ -176,10 +176,10 @@ def _retired(cls: type) -> dict[str, Any]:
     return out
 
 
-def _drop_retired(cls: type, data: dict[str, Any], where: str) -> dict[str, Any]:
-    """``data`` without the retired keys at their neutral value (see :func:`retire_options`)."""
+def _drop_retired(cls: type, names: set[str], data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` without the retired keys at their neutral value (see :func:`retire_options`);
+    ``names``: the fields of ``cls``, which a retired name never shadows."""
     retired = _retired(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
     for key in sorted(k for k in data if k in retired and k not in names):
         if data[key] != retired[key]:
             raise ConfigError(
@@ -198,7 +198,7 @@ def merge_dict(default: Any, data: dict[str, Any], where: str = "config") -> Any
         raise ConfigError(f"expected a mapping, got {type(data).__name__}", where=where)
     hints = _hints(type(default))
     names = {f.name for f in dataclasses.fields(default)}
-    data = _drop_retired(type(default), data, where)
+    data = _drop_retired(type(default), names, data, where)
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(

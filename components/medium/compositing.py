@@ -124,8 +124,11 @@ class CompositeConfig:
 
 # tried and removed; in the config.yml of runs trained while they existed (see retire_options)
 retire_options(
-    CompositeConfig, near_gradient=0.0, per_gaussian=False, jitter=False
-)  # 6c6e05e, f7ef174, 9e68f6f
+    CompositeConfig,
+    near_gradient=0.0,  # 6c6e05e
+    per_gaussian=False,  # f7ef174
+    jitter=False,  # 9e68f6f
+)
 
 
 @dataclass

@@ -89,7 +89,8 @@ def test_load_config_missing_and_unknown_method(tmp_path):
 def test_a_retired_option_at_its_off_value_still_loads(tmp_path):
     """Runs trained while an option existed carry it in config.yml: at the value that meant off
     they load as before; with any other value the error names the option and what to do."""
-    cfg = load_all().get("method", "tri-dehaze").make_config()
+    fresh = load_all().get("method", "tri-dehaze").make_config
+    cfg = fresh()
     path = tmp_path / "config.yml"
     save_config(cfg, path)
     text = path.read_text()
@@ -99,24 +100,24 @@ def test_a_retired_option_at_its_off_value_still_loads(tmp_path):
         data.pop(key, None)
     data["pipeline"]["strong_bound_floor"] = 0.0
     data["pipeline"]["composite"]["per_gaussian"] = False
-    back = merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+    back = merge_dict(fresh(), data)
     assert back == cfg
 
     data["pipeline"]["strong_bound_floor"] = 0.1
     with pytest.raises(ConfigError) as err:
-        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data, where="config.yml")
+        merge_dict(fresh(), data, where="config.yml")
     line = err.value.one_line()
     assert "strong_bound_floor: 0.1" in line and "config.yml.pipeline" in line
     assert "set it to 0.0" in line and "git log -S 'strong_bound_floor'" in line
     data["pipeline"]["strong_bound_floor"] = 0.0
     data["pipeline"]["composite"]["per_gaussian"] = True
     with pytest.raises(ConfigError, match="per_gaussian: True is an option this version no longer has"):
-        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+        merge_dict(fresh(), data)
     # a key never declared retired is still unknown
     data["pipeline"]["composite"]["per_gaussian"] = False
     data["pipeline"]["strong_bound_flor"] = 0.0
     with pytest.raises(ConfigError, match="unknown config key.*strong_bound_flor"):
-        merge_dict(load_all().get("method", "tri-dehaze").make_config(), data)
+        merge_dict(fresh(), data)
 
 
 def test_retired_options_are_inherited_and_never_shadow_a_field():
