@@ -187,3 +187,73 @@ def test_the_seen_light_gate_survives_a_resume():
 def test_an_unknown_seen_level_is_refused():
     with pytest.raises(ValueError, match="seen-light level"):
         LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.07, 0.2))
+
+
+def _located(opaque_rate: float, elsewhere_rate: float, share: float = 0.4) -> torch.Tensor:
+    """[8, 8] bool seed-point pixels: every ``1 / rate``-th pixel of the opaque part (the first
+    ``share`` of the pixels, as in :func:`_opaque_in_part`) and of the rest."""
+    flat = torch.zeros(64, dtype=torch.bool)
+    n = round(share * 64)
+    for lo, hi, rate in ((0, n, opaque_rate), (n, 64, elsewhere_rate)):
+        if rate > 0:
+            flat[lo : hi : round(1 / rate)] = True
+    return flat.view(8, 8)
+
+
+def _decide_located(med: MediumRender, located: torch.Tensor | None, seen_located: float) -> LightIsotropy:
+    iso = LightIsotropy(
+        weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.05, 0.2), seen_located=seen_located
+    )
+    for step in range(5):
+        iso.observe(step, med, located)
+        iso.weight(step)
+    return iso
+
+
+def test_opaque_pixels_the_seed_points_land_on_are_surfaces_not_haze():
+    """Structure from motion matches nothing through opaque haze; where its points land on the
+    pixels rendered opaque about as often as elsewhere, those are surfaces of the light's colour
+    (beer's floor, session 41) and the strong bound stays."""
+    med = _opaque_in_part(0.4)
+    surface = _decide_located(med, _located(0.25, 0.25), seen_located=0.3)
+    assert surface.located_rate() == pytest.approx(1.0, rel=0.1)
+    assert surface.weight(4) == 1.0 and not surface.sees_light() and surface.judged_one_light()
+    assert "surfaces of the light's colour" in surface.decisions[0].message
+    assert surface.decisions[0].data["located_rate"] == pytest.approx(surface.located_rate())
+    haze = _decide_located(med, _located(0.0, 0.25), seen_located=0.3)  # no point on the haze
+    assert haze.located_rate() == 0.0 and haze.weight(4) == 0.1 and haze.sees_light()
+    assert "0.00x their rate elsewhere" in haze.decisions[0].message
+    few = _decide_located(med, _located(1 / 26, 1 / 2), seen_located=0.3)  # 1 of 26 against 20 of 64
+    assert few.located_rate() == pytest.approx((1 / 26) / (20 / 64)) and few.weight(4) == 0.1
+    share_alone = _decide_located(med, _located(0.25, 0.25), seen_located=1.0)  # the check off
+    assert share_alone.weight(4) == 0.1 and "located_rate" not in share_alone.decisions[0].data
+
+
+def test_without_seed_points_the_located_check_keeps_the_strong_bound():
+    iso = _decide_located(_opaque_in_part(0.4), None, seen_located=0.3)
+    assert iso.located_rate() is None and iso.weight(4) == 1.0
+    assert "no seed points" in iso.decisions[0].message
+    json.dumps(iso.decisions[0].data, allow_nan=False)
+
+
+def test_the_located_counts_survive_a_resume():
+    med, located = _opaque_in_part(0.4), _located(0.0, 0.25)
+    first = LightIsotropy(
+        weak=0.1, strong=1.0, threshold=0.03, window=(0, 4), seen_light=(0.05, 0.2), seen_located=0.3
+    )
+    for step in range(2):  # stopped inside the window
+        first.observe(step, med, located)
+    after = LightIsotropy(
+        weak=0.1, strong=1.0, threshold=0.03, window=(0, 4), seen_light=(0.05, 0.2), seen_located=0.3
+    )
+    after.load_state_dict(first.state_dict())
+    for step in range(2, 6):
+        after.observe(step, med, located)
+        after.weight(step)
+    assert float(after.located[0]) == 4 * int(located.sum()) and after.weight(5) == 0.1
+    old = {k: v for k, v in first.state_dict().items() if k != "located"}  # a checkpoint from before
+    before = LightIsotropy(
+        weak=0.1, strong=1.0, threshold=0.03, window=(0, 4), seen_light=(0.05, 0.2), seen_located=0.3
+    )
+    before.load_state_dict(old)
+    assert float(before.located.sum()) == 0.0
