@@ -5,9 +5,7 @@ medium's per-ray light is under ``--pipeline.light-isotropy-cv`` (docs/medium.md
 for trained runs, the spread each one logged (logs/decisions.jsonl), the weight it chose, and its
 restoration and T error where td-eval has written them (eval/test.json), and the share of the
 verdict window's pixels that rendered as opaque haze (T under ``--pipeline.light-seen-level``;
-above ``--pipeline.light-seen-share`` a one-light run keeps the weak weight) with, where the run
-took the located check (``--pipeline.light-seen-located``), how often the seed points landed on
-those pixels relative to the rest:
+above ``--pipeline.light-seen-share`` a one-light run keeps the weak weight):
 
     python benchmarks/light_isotropy_split.py --runs RUN_A/config.yml RUN_B/config.yml --output OUT
 
@@ -50,8 +48,6 @@ def diagnose(config: Path) -> dict:
         "seen_level": cfg.pipeline.light_seen_level,
         "seen_share": cfg.pipeline.light_seen_share,
         "opaque_share": records[-1].get(f"opaque_{cfg.pipeline.light_seen_level:g}") if records else None,
-        "seen_located": cfg.pipeline.light_seen_located,
-        "located_rate": records[-1].get("located_rate") if records else None,
         "decision_step": records[-1]["step"] if records else None,
         "restoration_psnr": None,
         "t_mae": None,
@@ -67,14 +63,13 @@ def diagnose(config: Path) -> dict:
 def table(rows: list[dict]) -> str:
     lines = [
         "| scene | set | seed | light spread (cv) | threshold | opaque share (T under) | seen share | "
-        "located rate (under) | dark-channel weight | restoration PSNR | T MAE |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "dark-channel weight | restoration PSNR | T MAE |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         opaque = "-" if r["opaque_share"] is None else f"{r['opaque_share']:.3f} ({r['seen_level']:g})"
-        located = "-" if r["located_rate"] is None else f"{r['located_rate']:.2f} ({r['seen_located']:g})"
         cells = [r["scene"], r["data"], str(r["seed"]), fmt_number(r["light_cv"], 3), fmt_number(r["threshold"], 3),
-                 opaque, fmt_number(r["seen_share"], 2), located,
+                 opaque, fmt_number(r["seen_share"], 2),
                  "no decision" if r["dcp_weight"] is None else f"{r['dcp_weight']:g}",
                  fmt_number(r["restoration_psnr"], 2), fmt_number(r["t_mae"], 3)]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")

@@ -10,16 +10,13 @@ a scene is shows in the medium's own light a few hundred steps into Stage I: the
 per-ray light (S / (1 - T)) over the pixels it scatters into. Dense haze is the exception: its
 opaque pixels show the light itself (I ~ L), which pins the brightness, and there the bound is only
 its own margin (T >= 1 - omega against a true ~0), so it thins the medium; the share of such
-pixels over the same window holds a one-light run at the weak weight (session 40). A bright
-surface whose colour is the light's looks the same in one image (beer's floor: session 41), but
-structure from motion matched it across views: the seed points land on it about as often as on
-the rest of the image, and hardly ever on opaque haze (session 42).
+pixels over the same window holds a one-light run at the weak weight (session 40).
 """
 
 from __future__ import annotations
 
 import torch
-from torch import Tensor, nn
+from torch import nn
 
 from components.medium.compositing import MediumRender
 from pipelines.engine.contract import Decision
@@ -50,7 +47,6 @@ class LightIsotropy(nn.Module):
         window: tuple[int, int],
         measures: bool = True,
         seen_light: tuple[float, float] = (0.05, 1.0),
-        seen_located: float = 1.0,
     ) -> None:
         super().__init__()
         self.weak, self.strong, self.threshold = weak, strong, threshold
@@ -58,10 +54,6 @@ class LightIsotropy(nn.Module):
         """A one-light run keeps the weak weight where more than ``seen_share`` of the window's
         pixels rendered T under ``seen_level``: those pixels see the haze light itself and pin its
         brightness, which is what the strong bound would otherwise supply (1.0: never)."""
-        self.seen_located = seen_located
-        """The opaque pixels count as haze only where the seed points land on them at under this
-        fraction of their rate over all the window's pixels (1.0: any rate; no seed points at
-        all: the gate cannot tell haze from surface, and the bound stays strong)."""
         if self.seen_level not in OPAQUE_LEVELS:
             raise ValueError(f"seen-light level {self.seen_level} is not one of {OPAQUE_LEVELS}")
         self.measures = measures
@@ -70,17 +62,14 @@ class LightIsotropy(nn.Module):
         self.register_buffer("sums", torch.zeros(3, dtype=torch.float64))  # count, sum, sum of squares
         # pixels seen in the window, then those under each of OPAQUE_LEVELS
         self.register_buffer("opaque", torch.zeros(1 + len(OPAQUE_LEVELS), dtype=torch.float64))
-        # located pixels seen in the window, and those of them under seen_level
-        self.register_buffer("located", torch.zeros(2, dtype=torch.float64))
         # -1: not decided yet; NO_MEASUREMENT: decided without one (checkpoints hold finite values only)
         self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # else the cv
         self.decisions: list[str | Decision] = []
         """The decision, once made (the trainer prints it and writes it to logs/decisions.jsonl)."""
         self._strong: bool | None = None  # the decided buffer read once, not at every step
 
-    def observe(self, step: int, med: MediumRender, located: Tensor | None = None) -> None:
-        """Add one step's per-ray light and opaque pixels; ``located`` [H, W] bool: where the view's
-        seed points land (nothing is computed outside the window)."""
+    def observe(self, step: int, med: MediumRender) -> None:
+        """Add one step's per-ray light (nothing is computed outside the window)."""
         if not self.measures or not self.start <= step < self.decision_step:
             return
         haze = 1.0 - med.pixel_transmittance().detach()  # [H, W, 1]
@@ -92,9 +81,6 @@ class LightIsotropy(nn.Module):
         T = 1.0 - haze[..., 0]  # [H, W]
         below = [(T < level).sum() for level in OPAQUE_LEVELS]
         self.opaque += torch.stack([T.new_tensor(T.numel()), *below]).double()
-        if located is not None:
-            seen = located & (T < self.seen_level)  # [H, W]
-            self.located += torch.stack([located.sum(), seen.sum()]).double()
 
     def weight(self, step: int) -> float:
         """The dark-channel weight at ``step``: ``weak`` until the decision, then the one decided.
@@ -122,25 +108,8 @@ class LightIsotropy(nn.Module):
 
     def sees_light(self) -> bool:
         """Whether the window's pixels saw the haze light itself (opaque haze) often enough to pin
-        its brightness: more than ``seen_share`` of them under ``seen_level``, and, with
-        ``seen_located`` under 1, seed points landing on those under that fraction of their rate
-        over all pixels."""
-        if self.seen_light_share() <= self.seen_share:
-            return False
-        if self.seen_located >= 1.0:
-            return True
-        rate = self.located_rate()
-        return rate is not None and rate < self.seen_located
-
-    def located_rate(self) -> float | None:
-        """How often the seed points land on the window's opaque pixels (T under ``seen_level``),
-        relative to all its pixels: about 1 for surfaces read as haze, near 0 for opaque haze;
-        None without seed points or opaque pixels."""
-        total, opaque = float(self.opaque[0]), float(self.opaque[1 + OPAQUE_LEVELS.index(self.seen_level)])
-        located, located_opaque = (float(v) for v in self.located)
-        if located <= 0.0 or opaque <= 0.0:
-            return None
-        return (located_opaque / opaque) / (located / total)
+        its brightness: more than ``seen_share`` of them under ``seen_level``."""
+        return self.seen_light_share() > self.seen_share
 
     def seen_light_share(self) -> float:
         """The share of the window's pixels whose rendered T was under ``seen_level``."""
@@ -169,41 +138,26 @@ class LightIsotropy(nn.Module):
         one_light = cv is not None and cv < self.threshold
         seen = one_light and self.sees_light()
         weight = self.strong if self._raises() else self.weak
-        located = {"located_rate": self.located_rate()} if self.seen_located < 1.0 else {}
         if cv is None:
             text = "no pixel has enough haze to measure the medium's light on"
         elif seen:
             text = (
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): one "
                 f"light, but {self.seen_light_share():.0%} of the pixels see it through opaque haze (T < {self.seen_level:g}), "
-                f"which pins its brightness{self._located_text()}"
+                "which pins its brightness"
             )
         elif one_light:
             text = (
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): "
-                f"one light, which only the dark channel pins{self._located_text()}"
+                "one light, which only the dark channel pins"
             )
         else:
             text = f"the medium's light varies by {cv:.1%} over the rays (not under {self.threshold:.1%})"
         self.decisions.append(
             Decision(
                 f"{text}; dark-channel weight {weight:g} from step {step}",
-                {"light_cv": cv, "dcp_weight": weight, **self.opaque_shares(), **located},
+                {"light_cv": cv, "dcp_weight": weight, **self.opaque_shares()},
             )
-        )
-
-    def _located_text(self) -> str:
-        """The located check's reading, where it was taken and the share alone would gate."""
-        rate = self.located_rate()
-        if self.seen_located >= 1.0 or self.seen_light_share() <= self.seen_share:
-            return ""
-        if rate is None:
-            return " (no seed points to tell opaque haze from a surface of the light's colour)"
-        if rate < self.seen_located:
-            return f" (seed points land on those pixels at {rate:.2f}x their rate elsewhere)"
-        return (
-            f" ({self.seen_light_share():.0%} of the pixels render as opaque haze, but seed points land on them "
-            f"at {rate:.2f}x their rate elsewhere: surfaces of the light's colour, not haze)"
         )
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
@@ -211,6 +165,5 @@ class LightIsotropy(nn.Module):
         state_dict.setdefault(prefix + "sums", self.sums.clone())
         state_dict.setdefault(prefix + "decided", self.decided.clone())
         state_dict.setdefault(prefix + "opaque", self.opaque.clone())
-        state_dict.setdefault(prefix + "located", self.located.clone())
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._strong = None

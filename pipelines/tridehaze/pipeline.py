@@ -156,12 +156,6 @@ class GaussianPipelineConfig(PipelineConfig):
     ``composite.clean-fill auto`` still follows the one-light verdict. 1.0: never."""
     light_seen_level: Literal[0.02, 0.05, 0.1, 0.15] = 0.05
     """The rendered T under which a pixel counts as seeing the haze light (``light-seen-share``)."""
-    light_seen_located: Annotated[float, Range(0.0, 1.0)] = 1.0
-    """With ``light-seen-share``: those opaque pixels count as haze only where the seed points land
-    on them at under this fraction of their rate over all pixels. Structure from motion matches
-    nothing through opaque haze, but it does match a bright surface the model misreads as haze
-    (beer's floor: 0.5x, dense generated haze 0.1-0.2x; docs/results/medium_recovery.md, session
-    42). Without seed points the gate then never holds the weight weak. 1.0: the share alone."""
     light_decision_fraction: Annotated[float, Range(0.0, 1.0)] = 0.25
     """When the light's spread is judged, as a fraction of the run; it is measured over the second
     half of the steps between the medium's hold and then (earlier, the sunlit and the other
@@ -378,7 +372,6 @@ class GaussianPipeline(Pipeline):
             window,
             measures=read and decide < self.freeze_step,
             seen_light=(cfg.light_seen_level, cfg.light_seen_share),
-            seen_located=cfg.light_seen_located,
         )
 
     def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:
@@ -426,11 +419,7 @@ class GaussianPipeline(Pipeline):
             )  # fmt: skip
         if not (dcp or plan.depth_source != "none"):
             return {}
-        cfg = self.config  # the seen-light gate with its located check reads where the points land
-        located = cfg.light_seen_share < 1.0 and cfg.light_seen_located < 1.0
-        return build_view_priors(
-            dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm, located=located
-        )
+        return build_view_priors(dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm)
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:
@@ -546,7 +535,7 @@ class GaussianPipeline(Pipeline):
         cfg = self.config
         T = med.pixel_transmittance()[..., 0]  # [H, W]
         loss = T.new_zeros(())
-        self.light_isotropy.observe(step, med, None if prior is None else prior.located)
+        self.light_isotropy.observe(step, med)
         lambda_dcp = self.light_isotropy.weight(step)
         if stage == 1 and lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
             t_prior, mask = prior.t_dcp, None

@@ -42,10 +42,6 @@ class ViewPrior:
     depth_valid: Tensor | None = None  # [H, W] bool
     depth_metric: bool = False
     """``depth`` is z in the scene's own frame (projected SfM points), so its scale can be used."""
-    located: Tensor | None = None
-    """[H, W] bool: within a pixel of a seed point the view sees (None: the scene has no seed
-    points). Structure from motion triangulates only what it can match across views, so a located
-    pixel shows a surface, not opaque haze."""
 
 
 @dataclass
@@ -165,16 +161,6 @@ def visible_points(camera: Cameras, points: Tensor) -> VisiblePoints:
     return VisiblePoints(ok, u[ok], v[ok], pc[ok].norm(dim=-1))
 
 
-def located_pixels(camera: Cameras, points: Tensor) -> Tensor:
-    """[H, W] bool: the pixels within one pixel (3 x 3) of a seed point ``points`` [M, 3] (CPU,
-    float) that ``camera`` sees (:func:`visible_points`)."""
-    H, W = int(camera.height[0]), int(camera.width[0])
-    vis = visible_points(camera, points)
-    hit = torch.zeros(1, 1, H, W)
-    hit[0, 0, vis.v, vis.u] = 1.0
-    return torch.nn.functional.max_pool2d(hit, 3, stride=1, padding=1)[0, 0] > 0
-
-
 def observed_point_colors(
     dm: DataManager, indices: list[int], points: Tensor, est: MediumEstimate, t_floor: float = 0.2
 ) -> tuple[Tensor, Tensor]:
@@ -205,10 +191,8 @@ def build_view_priors(
     source: str,
     points: Tensor | None,
     warmup_depths: dict[int, Tensor] | None = None,
-    located: bool = False,
 ) -> dict[int, ViewPrior]:
-    """One :class:`ViewPrior` per training view for the chosen pseudo-depth ``source``;
-    ``located``: with the pixels the seed points locate, where there are any."""
+    """One :class:`ViewPrior` per training view for the chosen pseudo-depth ``source``."""
     out: dict[int, ViewPrior] = {}
     for i in indices:
         prior = ViewPrior()
@@ -234,8 +218,6 @@ def build_view_priors(
         if d is not None:
             prior.depth = torch.as_tensor(d).float().to(dm.device)
             prior.depth_valid = torch.as_tensor(valid).bool().to(dm.device)
-        if located and points is not None and len(points) > 0:
-            prior.located = located_pixels(cam, points.detach().float().cpu()).to(dm.device)
         out[i] = prior
     return out
 

@@ -79,7 +79,6 @@ ABLATIONS = [
     ("--pipeline.sky-shell", "500"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
     ("--pipeline.light-seen-share", "0.2"),
-    ("--pipeline.light-seen-share", "0.2", "--pipeline.light-seen-located", "0.3"),
     ("--pipeline.medium-ignores-backdrop",),
     ("--pipeline.light-colour-fit",),
 ]
@@ -110,31 +109,6 @@ def test_the_light_isotropy_decision_is_logged_and_followed(hazy_scene, tmp_path
     cv, weight = records[0]["light_cv"], records[0]["dcp_weight"]
     assert weight == (1.0 if cv is not None and cv < 0.03 else 0.1)
     assert trainer.pipeline.light_isotropy.weight(STEPS) == weight
-
-
-def test_the_located_check_reads_where_the_seed_points_land(hazy_scene, tmp_path, device):
-    """``--pipeline.light-seen-located``: each view's prior carries the pixels its seed points land
-    on, the verdict window counts them and the decision logs their rate; off (the default), no
-    view computes them."""
-    cfg = _config(hazy_scene, tmp_path / "on", device, "--pipeline.lambda-dcp-isotropic", "1",
-                  "--pipeline.light-decision-fraction", "0.34", "--pipeline.light-seen-share", "0.2",
-                  "--pipeline.light-seen-located", "0.3")  # fmt: skip
-    trainer = _train(cfg)
-    priors = trainer.pipeline.priors
-    shapes = {
-        i: (int(trainer.datamanager.camera(i).height[0]), int(trainer.datamanager.camera(i).width[0]))
-        for i in priors
-    }
-    assert priors and all(p.located is not None and p.located.shape == shapes[i] for i, p in priors.items())
-    assert any(bool(p.located.any()) for p in priors.values())
-    iso = trainer.pipeline.light_isotropy
-    assert float(iso.located[0]) > 0 and float(iso.located[1]) <= float(iso.located[0])
-    records = [r for r in map(json.loads, (trainer.run_dir / "logs" / "decisions.jsonl").read_text().splitlines())
-               if "light_cv" in r]  # fmt: skip
-    assert "located_rate" in records[0]
-    off = Trainer(_config(hazy_scene, tmp_path / "off", device), console=None)
-    off.setup()
-    assert all(p.located is None for p in off.pipeline.priors.values())
 
 
 def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(hazy_scene, tmp_path, device):
