@@ -48,6 +48,7 @@ from pipelines.tridehaze.priors import (
     visible_points,
 )
 from pipelines.tridehaze.probe import probe_haze
+from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.warmup import warmup_depths
 from tridehaze_plugin.config import NonNegative, Range, RegistryChoice, retire_options
@@ -194,6 +195,12 @@ class GaussianPipelineConfig(PipelineConfig):
     semi-transparent surface show the shell behind it, against the random training background's
     push to opacity: off (0) by default (docs/results/medium_recovery.md, session 29). Without a
     seed cloud it does nothing: the random start already fills the box."""
+    ground_seeds: Annotated[int, NonNegative] = 0
+    """Seed up to this many Gaussians on the ground plane (a low quantile of the seed points'
+    height along the cameras' up) where training rays below the horizon see no seed point, beyond
+    the view's farthest ones: far terrain that structure from motion does not reach otherwise
+    starts at a depth every view agrees on, so the medium is marched to it. 0: off
+    (docs/results/medium_recovery.md, session 42). Without a seed cloud it does nothing."""
     seed_colors: Literal["nearest", "observed"] = "nearest"
     """How the seed colours are dehazed: ``nearest`` dehazes the dataset's point colour at the
     nearest camera's distance; ``observed`` re-reads every training view that sees the point and
@@ -337,6 +344,7 @@ class GaussianPipeline(Pipeline):
         self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
         colors = self._initialize_medium(dcp, plan)
         points, colors = self._with_sky_shell(scene.points, colors, bounds)
+        points, colors = self._with_ground_seeds(points, colors, scene.points)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
         self.model.to(datamanager.device)
         self.medium.attach(self.model)
@@ -407,6 +415,19 @@ class GaussianPipeline(Pipeline):
         base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
         pts = torch.cat([points.detach().float(), shell.to(points.device)])
         return pts, torch.cat([base.to(points.device), shell_colors.to(points.device)])
+
+    def _with_ground_seeds(
+        self, points: Tensor | None, colors: Tensor | None, cloud: Tensor | None
+    ) -> tuple[Tensor | None, Tensor | None]:
+        """The seed points [M, 3] and colours with ``ground_seeds`` points appended (colours as
+        float); the ground is found from the dataset's own cloud ``cloud``."""
+        if self.config.ground_seeds == 0 or points is None or cloud is None or len(cloud) == 0:
+            return points, colors
+        seeds, seed_colors = ground_seeds(self.datamanager, cloud, self.scene_up, self.config.ground_seeds)
+        base = torch.full_like(points, 0.5) if colors is None else torch.as_tensor(colors)
+        base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
+        pts = torch.cat([points.detach().float(), seeds.to(points.device)])
+        return pts, torch.cat([base.to(points.device), seed_colors.to(points.device)])
 
     def _view_priors(self, dcp: dict[int, DCPResult], plan: _PriorPlan, seed: int) -> dict[int, ViewPrior]:
         """Per-view pseudo-depth and dark-channel transmittance (a warm-up run first if it is the source)."""
