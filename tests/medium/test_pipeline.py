@@ -77,6 +77,7 @@ ABLATIONS = [
     ("--pipeline.seed-colors", "observed"),
     ("--pipeline.medium.light", "axial"),
     ("--pipeline.sky-shell", "500"),
+    ("--pipeline.ground-seeds", "200"),
     ("--pipeline.lambda-dcp-isotropic", "0"),
     ("--pipeline.light-seen-share", "0.2"),
     ("--pipeline.medium-ignores-backdrop",),
@@ -180,6 +181,22 @@ def test_sky_shell_adds_gaussians_on_the_sphere_around_the_medium(hazy_scene, tm
     bounds = built[800].medium.bounds
     radius = (shell[len(plain) :] - bounds.center.to(shell)).norm(dim=-1)
     torch.testing.assert_close(radius, torch.full_like(radius, float(bounds.half_size.norm())))
+
+
+def test_ground_seeds_add_gaussians_beyond_the_seed_cloud(hazy_scene, tmp_path, device):
+    """``--pipeline.ground-seeds``: the Gaussians start from the seed cloud plus points on its
+    ground plane farther than the cloud reaches; off, from the cloud alone."""
+    from rich.console import Console
+
+    starts = {}
+    for n in ("0", "200"):
+        cfg = _config(hazy_scene, tmp_path / n, device, "--pipeline.ground-seeds", n)
+        trainer = Trainer(cfg, console=Console(quiet=True))
+        trainer.setup()
+        starts[n] = (trainer.pipeline.model.num_gaussians, trainer.datamanager.scene.points)
+    base, cloud = starts["0"]
+    assert base == len(cloud)
+    assert base < starts["200"][0] <= base + 200
 
 
 def test_farthest_ground_fill_changes_the_clean_render_below_the_horizon_only(hazy_scene, tmp_path, device):
