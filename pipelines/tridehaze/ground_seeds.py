@@ -3,10 +3,11 @@
 Structure from motion finds few points on ground too far for parallax or too deep in the haze, so
 no Gaussian starts there, and the optimiser covers those pixels with what is nearest: on the
 generated fields the terrain seen at true T 0.05-0.4 (true depth 7-22 scene units) is rendered at
-0.3-0.5 of its depth, and the medium, marched to that depth, is too dense there to make up for it
-(docs/results/medium_recovery.md, session 42). Where a training ray below the horizon sees no seed
-point, it is followed to the ground plane (a low quantile of the seed points' height along the
-cameras' up) and a seed is put where it meets it, beyond the view's farthest seed points.
+0.3-0.5 of its depth. Where a training ray below the horizon sees no seed point, it is followed to
+the ground plane (a low quantile of the seed points' height along the cameras' up) and a seed is
+put where it meets it, beyond the view's farthest seed points. Only for open ground: behind a
+wall the plane runs on, and a seed cast through the wall's pixels starts the wall at a second
+depth (docs/results/medium_recovery.md, session 42).
 """
 
 from __future__ import annotations

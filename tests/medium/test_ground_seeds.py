@@ -67,7 +67,9 @@ def test_the_seeds_lie_on_the_ground_beyond_the_cloud():
     reach = (pts[:, None] - centres[None]).norm(dim=-1).min(dim=1).values
     far = float(torch.quantile((cloud[:, None] - centres[None]).norm(dim=-1).max(dim=1).values, FAR_QUANTILE))
     assert float(reach.max()) < MAX_REACH * far * 1.01
-    assert {round(float(c), 3) for c in cols[:, 0]} <= {round(0.1 * (i + 1), 3) for i in range(6)}  # the views' colours
+    assert {round(float(c), 3) for c in cols[:, 0]} <= {
+        round(0.1 * (i + 1), 3) for i in range(6)
+    }  # the views' colours
 
 
 def test_the_same_seed_gives_the_same_points():
