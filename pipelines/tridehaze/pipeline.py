@@ -306,6 +306,17 @@ def step_background(seed: int, step: int) -> Tensor:
     return torch.rand(3, generator=gen)
 
 
+def _append_seeds(
+    points: Tensor, colors: Tensor | None, extra: Tensor, extra_colors: Tensor
+) -> tuple[Tensor, Tensor]:
+    """The seed points [M, 3] with ``extra`` [K, 3] appended, and their colours as float in [0, 1]
+    (uint8 colours rescaled; none: grey) with ``extra_colors`` [K, 3]."""
+    base = torch.full_like(points, 0.5) if colors is None else torch.as_tensor(colors)
+    base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
+    pts = torch.cat([points.detach().float(), extra.to(points.device)])
+    return pts, torch.cat([base.to(points.device), extra_colors.to(points.device)])
+
+
 class GaussianPipeline(Pipeline):
     """3D Gaussians (+ optional medium) + rasterizer + losses on one view per step."""
 
@@ -412,11 +423,7 @@ class GaussianPipeline(Pipeline):
         """The seed cloud [M, 3] and colours with ``sky_shell`` points appended (colours as float)."""
         if self.config.sky_shell == 0 or points is None or len(points) == 0:
             return points, colors
-        shell, shell_colors = sky_shell(self.datamanager, bounds, self.config.sky_shell)
-        base = torch.full_like(points, 0.5) if colors is None else torch.as_tensor(colors)
-        base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
-        pts = torch.cat([points.detach().float(), shell.to(points.device)])
-        return pts, torch.cat([base.to(points.device), shell_colors.to(points.device)])
+        return _append_seeds(points, colors, *sky_shell(self.datamanager, bounds, self.config.sky_shell))
 
     def _with_ground_seeds(
         self, points: Tensor | None, colors: Tensor | None, cloud: Tensor | None
@@ -425,11 +432,8 @@ class GaussianPipeline(Pipeline):
         float); the ground is found from the dataset's own cloud ``cloud``."""
         if self.config.ground_seeds == 0 or points is None or cloud is None or len(cloud) == 0:
             return points, colors
-        seeds, seed_colors = ground_seeds(self.datamanager, cloud, self.scene_up, self.config.ground_seeds)
-        base = torch.full_like(points, 0.5) if colors is None else torch.as_tensor(colors)
-        base = base.float() / 255.0 if base.dtype == torch.uint8 else base.float()
-        pts = torch.cat([points.detach().float(), seeds.to(points.device)])
-        return pts, torch.cat([base.to(points.device), seed_colors.to(points.device)])
+        seeds = ground_seeds(self.datamanager, cloud, self.scene_up, self.config.ground_seeds)
+        return _append_seeds(points, colors, *seeds)
 
     def _view_priors(self, dcp: dict[int, DCPResult], plan: _PriorPlan, seed: int) -> dict[int, ViewPrior]:
         """Per-view pseudo-depth and dark-channel transmittance (a warm-up run first if it is the source)."""
