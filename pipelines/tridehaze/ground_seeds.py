@@ -54,7 +54,7 @@ def ground_seeds(
         out_cols.append(dm.image(i).detach().float().cpu()[rows[pick], cols[pick], :3])
     if not out_pts:
         return torch.zeros(0, 3), torch.zeros(0, 3)
-    return torch.cat(out_pts), torch.cat(out_cols)
+    return torch.cat(out_pts)[:count], torch.cat(out_cols)[:count]  # fewer than one per view
 
 
 def _view_ground(cam: Cameras, pts: Tensor, up: Tensor, ground: float) -> tuple[Tensor, Tensor, Tensor]:

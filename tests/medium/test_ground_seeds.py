@@ -72,6 +72,11 @@ def test_the_seeds_lie_on_the_ground_beyond_the_cloud():
     }  # the views' colours
 
 
+def test_fewer_seeds_than_views_stay_within_the_count():
+    pts, cols = ground_seeds(_Views(), _disc(), UP, count=4)  # 6 views
+    assert len(pts) == 4 and len(cols) == 4
+
+
 def test_the_same_seed_gives_the_same_points():
     views, cloud = _Views(), _disc()
     a, _ = ground_seeds(views, cloud, UP, count=300, seed=3)
