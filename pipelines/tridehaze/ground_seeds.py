@@ -17,13 +17,15 @@ from torch import Tensor
 
 from components.data.cameras import Cameras
 from components.losses.depth_priors import in_image, project_points
+from components.medium.compositing import pixel_rays
 from pipelines.engine.datamanager import DataManager
 from pipelines.tridehaze.priors import visible_points
 
 GROUND_QUANTILE = 0.02
 """The ground's height: this quantile of the seed points' heights along the up direction."""
 FAR_QUANTILE = 0.98
-"""A ground seed must lie beyond this quantile of the distances of the seed points its view sees."""
+"""A ground seed must lie beyond this quantile of the distances of the seed points inside its
+view's image (occluded or not)."""
 MAX_REACH = 8.0
 """... and within this many times that distance (rays grazing the horizon meet the plane far away)."""
 LOCATED_RADIUS = 4
@@ -60,7 +62,6 @@ def ground_seeds(
 def _view_ground(cam: Cameras, pts: Tensor, up: Tensor, ground: float) -> tuple[Tensor, Tensor, Tensor]:
     """One view's candidate ground points [K, 3] and the pixel rows and columns [K] they come from."""
     H, W = int(cam.height[0]), int(cam.width[0])
-    c2w = cam.camtoworlds[0].float()  # [4, 4] camera-to-world, OpenCV axes
     pc, uv = project_points(pts, cam.viewmats()[0].float(), cam.Ks()[0].float())  # [N, 3], [N, 2]
     inside = in_image(pc, uv, W, H, near=1e-3)
     if int(inside.sum()) < 10:
@@ -73,14 +74,8 @@ def _view_ground(cam: Cameras, pts: Tensor, up: Tensor, ground: float) -> tuple[
     located[0, 0, vis.v, vis.u] = 1.0
     k = 2 * LOCATED_RADIUS + 1
     located = torch.nn.functional.max_pool2d(located, k, stride=1, padding=LOCATED_RADIUS)[0, 0] > 0  # [H, W]
-    K = cam.Ks()[0].float()  # noqa: N806
-    v, u = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")  # [H, W]
-    d_cam = torch.stack(
-        [(u + 0.5 - K[0, 2]) / K[0, 0], (v + 0.5 - K[1, 2]) / K[1, 1], torch.ones(H, W)], dim=-1
-    )  # [H, W, 3]
-    dirs = d_cam @ c2w[:3, :3].T  # [H, W, 3]
+    dirs, origin = pixel_rays(cam, H, W, torch.device("cpu"), torch.float32)  # [H, W, 3], [3]
     dirs = dirs / dirs.norm(dim=-1, keepdim=True)
-    origin = c2w[:3, 3]  # [3]
     down = dirs @ up  # [H, W] < 0 below the horizon
     t = (ground - float(origin @ up)) / down.clamp(max=-1e-6)  # [H, W] distance to the plane
     keep = (down < -1e-3) & (t > far) & (t < MAX_REACH * far) & ~located
