@@ -29,7 +29,7 @@ from components.data.sanity import (
     check_principal_points,
     check_seed_visibility,
 )
-from components.data.scene import DataWarning, Frame, ParsedScene, SceneData, SceneTransform
+from components.data.scene import DataWarning, Frame, ParsedScene, PointTracks, SceneData, SceneTransform
 from tridehaze_plugin.errors import DataError, first_few
 from tridehaze_plugin.registry import REGISTRY
 
@@ -63,7 +63,7 @@ def load_scene(cfg: DataConfig) -> SceneData:
         width=torch.tensor([g.out_size[0] for g in geoms], dtype=torch.int64),
         height=torch.tensor([g.out_size[1] for g in geoms], dtype=torch.int64),
     )
-    points, colors = _seed_points(parsed, transform, c2w_raw, frames, geoms, root)
+    points, colors, kept = _seed_points(parsed, transform, c2w_raw, frames, geoms, root)
     return SceneData(
         name=root.name,
         root=root,
@@ -79,6 +79,7 @@ def load_scene(cfg: DataConfig) -> SceneData:
         },
         points=points,
         point_colors=colors,
+        point_tracks=loaded_tracks(parsed.point_tracks, kept, [f.name for f in frames]),
         transform=transform,
         downscale=cfg.downscale,
         test_is_clean=parsed.test_is_clean,
@@ -93,10 +94,11 @@ def _seed_points(
     frames: list[Frame],
     geoms: list[Geometry],
     root: Path,
-) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-    """The usable seed points [M, 3] in the normalised frame and their colours [M, 3] in [0, 1]
-    (None when the dataset has none), after checking that the cameras see them."""
-    points = colors = None
+) -> tuple[torch.Tensor | None, torch.Tensor | None, np.ndarray | None]:
+    """The usable seed points [M, 3] in the normalised frame, their colours [M, 3] in [0, 1]
+    (None when the dataset has none) and the mask of the parsed points kept, after checking that
+    the cameras see them."""
+    points = colors = keep = None
     if parsed.points is not None and len(parsed.points):
         raw = np.asarray(parsed.points, np.float64)  # [M, 3] in the dataset's frame
         normalised = transform.apply_points(torch.from_numpy(raw))  # [M, 3] the frame training sees
@@ -112,7 +114,23 @@ def _seed_points(
         points = normalised[torch.from_numpy(keep)].float()
         if parsed.point_colors is not None:  # [M, 3] in [0, 1]
             colors = torch.from_numpy(np.asarray(parsed.point_colors, np.uint8)[keep]).float() / 255.0
-    return points, colors
+    return points, colors, keep
+
+
+def loaded_tracks(
+    tracks: PointTracks | None, kept: np.ndarray | None, names: list[str]
+) -> PointTracks | None:
+    """Parsed tracks re-indexed to the kept seed points (``kept`` [M] bool) and the loaded views
+    (``names``, in view order); pairs of a dropped point or view go. None without tracks or points."""
+    if tracks is None or kept is None or tracks.names is None:
+        return None
+    new_point = np.cumsum(kept) - 1  # [M] parsed index -> kept index (valid where kept)
+    view_of = {n: i for i, n in enumerate(names)}
+    new_view = np.array([view_of.get(n, -1) for n in tracks.names], np.int64)  # [F]
+    ok = (tracks.point >= 0) & (tracks.point < len(kept)) & (tracks.view >= 0) & (tracks.view < len(new_view))
+    p, v = tracks.point[ok], new_view[tracks.view[ok]]
+    ok = kept[p] & (v >= 0)
+    return PointTracks(new_point[p[ok]], v[ok])
 
 
 FAR_POINT = 1e4

@@ -46,12 +46,39 @@ class Frame:
 
 
 @dataclass
+class PointTracks:
+    """Which views observed each seed point (an SfM track): pairs of a point and a view.
+
+    SfM knows where it matched each point; reprojecting every point into every view instead lets
+    points on hidden surfaces show through sparse foregrounds, which a depth prior then reads as
+    the visible surface (docs/data.md).
+    """
+
+    point: np.ndarray  # [K] int64, index into the seed points
+    view: np.ndarray  # [K] int64, index into ``names`` (parsed) or the scene's views (loaded)
+    names: list[str] | None = None
+    """Parsed tracks: the frame names (:attr:`Frame.name`) that ``view`` indexes; None once loaded."""
+
+    def __post_init__(self) -> None:
+        self.point = np.asarray(self.point, np.int64).reshape(-1)
+        self.view = np.asarray(self.view, np.int64).reshape(-1)
+        if self.point.shape != self.view.shape:
+            raise ValueError(f"track pairs disagree: {self.point.shape} points, {self.view.shape} views")
+
+    def points_in(self, view: int) -> np.ndarray:
+        """[m] indices of the points observed in ``view`` (loaded tracks)."""
+        return np.unique(self.point[self.view == view])
+
+
+@dataclass
 class ParsedScene:
     """A parser's raw output."""
 
     frames: list[Frame]
     points: np.ndarray | None = None  # [M, 3] float64 world points (seed cloud)
     point_colors: np.ndarray | None = None  # [M, 3] uint8
+    point_tracks: PointTracks | None = None
+    """The views each seed point was observed in, where the format records it (COLMAP tracks)."""
     train_names: list[str] | None = None
     """Explicit split, when the format has one (names as in :attr:`Frame.name`)."""
     test_names: list[str] | None = None
@@ -117,6 +144,8 @@ class SceneData:
     frame_names: list[str] = field(default_factory=list)
     """[N] each view's :attr:`Frame.name` (path relative to the dataset root, unique); image_paths may
     point into the cache, whose file names carry a hash."""
+    point_tracks: PointTracks | None = None
+    """Which of these views observed each of :attr:`points` (None: not recorded by the dataset)."""
 
     def __len__(self) -> int:
         return len(self.image_paths)

@@ -9,6 +9,8 @@ Output (nerfstudio layout, paths relative to the folder)::
     gt_transmittance/NNNN.npy  true T in (0, 1] (``gt_transmittance_file_path``)
     gt_scattering/NNNN.npy     true S [H, W, 3] (``gt_scattering_file_path``); hazy = clean * T + S
     points3d.ply               sparse seed cloud (noisy visible surface points with clean colours)
+    points3d_tracks.npy        each seed point's track: (point, frame) pairs of the train views that
+                               see its true surface point unoccluded (``point_tracks_file_path``)
     synth_meta.json            settings, medium parameters, timings, mean transmittance
 
 The ``gt_*`` keys land in ``SceneData.extra_paths``, never in ``depth_paths``: true depth would be
@@ -34,7 +36,7 @@ from components.synth.layouts import LAYOUTS, Layout, make_layout
 from components.synth.march import DEFAULT_SAMPLES
 from components.synth.medium import PRESETS, Medium, make_medium
 from components.synth.render import CleanView, apply_medium, render_clean
-from components.synth.seed_cloud import default_count, pick_pixels, place_points
+from components.synth.seed_cloud import default_count, pick_pixels, place_points, seed_tracks
 from components.synth.trajectories import orbit_poses, walk_poses
 from components.synth.writer import frame_entry, staged_output, write_json, write_map, write_rgb
 from tridehaze_plugin.errors import ConfigError
@@ -147,16 +149,18 @@ def sample_points(
     k: int,
     cfg: SceneConfig,
     rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``k`` seed points of one view (``hazy`` [H, W, 3] decides where the sfm cloud finds
-    features) with their pixel's ``colors`` [H, W, 3]; errors as ``cfg.seed_cloud`` models them."""
+    features) with their pixel's ``colors`` [H, W, 3]; errors as ``cfg.seed_cloud`` models them.
+    Also returns the true surface points they were drawn from (for their tracks)."""
     pick = pick_pixels(cfg.seed_cloud, view.hit.numpy(), hazy, k, rng)
     if len(pick) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros((0, 3))
     o, d = view.origins.numpy()[pick].astype(np.float64), view.dirs.numpy()[pick].astype(np.float64)
-    xyz = place_points(cfg.seed_cloud, o, d, view.t_end.numpy()[pick], cfg.point_noise, rng)  # [k, 3]
+    t = view.t_end.numpy()[pick]
+    xyz = place_points(cfg.seed_cloud, o, d, t, cfg.point_noise, rng)  # [k, 3]
     rgb = colors.reshape(-1, 3).numpy()[pick]
-    return xyz, np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return xyz, np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8), o + t.astype(np.float64)[:, None] * d
 
 
 def generate_scene(cfg: SceneConfig) -> dict[str, Any]:
@@ -198,7 +202,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
         num_points = default_count(cfg.seed_cloud, len(train))
     per_view_points = -(-num_points // max(len(train), 1))
     t_clean = t_haze = t_write = 0.0
-    frames, pts, cols, mean_T = [], [], [], []
+    frames, pts, cols, surface, mean_T = [], [], [], [], []
     T_hist = np.zeros(1001, dtype=np.int64)  # histogram of T for the median without keeping all maps
     for i, c2w in enumerate(poses):
         t0 = time.perf_counter()
@@ -212,19 +216,23 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
         T_hist += np.bincount(np.clip(np.rint(T.ravel() * 1000), 0, 1000).astype(np.int64), minlength=1001)
         if i in train and num_points:
             colors = view.clean if cfg.point_colors == "clean" else hz.hazy
-            p, c = sample_points(view, hz.hazy, colors, per_view_points, cfg, rng)
+            p, c, x = sample_points(view, hz.hazy, colors, per_view_points, cfg, rng)
             pts.append(p)
             cols.append(c)
+            surface.append(x)
         t_clean += t1 - t0
         t_haze += t2 - t1
         t_write += time.perf_counter() - t2
     xyz = np.concatenate(pts)[:num_points] if pts else np.zeros((0, 3))
     rgb = np.concatenate(cols)[:num_points] if cols else np.zeros((0, 3), np.uint8)
     write_ply_points(root / "points3d.ply", xyz, rgb)
+    true_xyz = np.concatenate(surface)[:num_points] if surface else np.zeros((0, 3))
+    np.save(root / "points3d_tracks.npy", seed_tracks(layout.geometry, true_xyz, poses, K, train))
     transforms = {
         "camera_model": "PINHOLE",
         **{"fl_x": K.fx, "fl_y": K.fy, "cx": K.cx, "cy": K.cy, "w": K.width, "h": K.height},
         "ply_file_path": "points3d.ply",
+        "point_tracks_file_path": "points3d_tracks.npy",
         "train_filenames": [frames[i]["file_path"] for i in train],
         "test_filenames": [frames[i]["file_path"] for i in test],
         "frames": frames,

@@ -21,7 +21,9 @@ import cv2
 import numpy as np
 import torch
 
+from components.data.cameras import ViewIntrinsics
 from components.sfm.enhance import clahe
+from components.synth.geometry import NEAR, SceneGeometry, trace
 
 SFM_POINTS_PER_VIEW = 30
 """Points per train view of the ``sfm`` cloud when the count is not given (measured 24-36 per
@@ -70,6 +72,45 @@ def pick_pixels(
         return idx[:0]
     k = min(k, int((w > 0).sum()))
     return np.sort(rng.choice(idx, size=k, replace=False, p=w / w.sum()))
+
+
+TRACK_TOLERANCE = 1e-3
+"""A track view must see the point's surface within this share of its distance (the hit's own
+rounding; anything nearer along the ray is an occluder)."""
+
+
+def seed_tracks(
+    geometry: SceneGeometry,
+    surface: np.ndarray,
+    poses: list[np.ndarray],
+    K: ViewIntrinsics,
+    views: list[int],
+) -> np.ndarray:
+    """[P, 2] (point, view) pairs: the ``views`` (indices into ``poses``, OpenCV camera-to-world)
+    whose image holds the true ``surface`` point [M, 3] (before the cloud's noise) with nothing in
+    front of it: the track SfM would record, where matching succeeds in every view that sees the
+    point. One traced ray per point and view."""
+    pairs = []
+    X = torch.from_numpy(np.asarray(surface, np.float64)).float()  # [M, 3]
+    for j in views:
+        c2w = np.asarray(poses[j], np.float64)
+        centre = torch.from_numpy(c2w[:3, 3]).float()
+        R = torch.from_numpy(c2w[:3, :3]).float()
+        pc = (X - centre) @ R  # [M, 3] camera coordinates (OpenCV: z forward)
+        z = pc[:, 2]
+        u = K.fx * pc[:, 0] / z.clamp_min(1e-9) + K.cx
+        v = K.fy * pc[:, 1] / z.clamp_min(1e-9) + K.cy
+        inside = (z > NEAR) & (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+        idx = torch.nonzero(inside)[:, 0]
+        if len(idx) == 0:
+            continue
+        offset = X[idx] - centre  # [m, 3]
+        dist = offset.norm(dim=-1)
+        hit = trace(geometry, centre.expand(len(idx), 3), offset / dist[:, None])
+        seen = hit.t >= dist * (1.0 - TRACK_TOLERANCE)  # [m] no surface in front of the point
+        pts = idx[seen].numpy()
+        pairs.append(np.stack([pts, np.full(len(pts), j)], axis=1))
+    return np.concatenate(pairs).astype(np.int64) if pairs else np.zeros((0, 2), np.int64)
 
 
 def place_points(

@@ -96,6 +96,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
     channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
     every training view has one, else SfM when the scene has seed points, else warmup."""
+    point_tracks: bool = True
+    """Build the ``sfm`` pseudo-depth of each view from the points its SfM tracks say it observed,
+    where the dataset records tracks (COLMAP models, td-synth scenes); off: every point reprojected
+    into every view, with a guess at occlusion (what datasets without tracks get)."""
     warmup_steps: Annotated[int, NonNegative] = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
     lambda_depth: Annotated[float, NonNegative] = 0.0
@@ -446,7 +450,8 @@ class GaussianPipeline(Pipeline):
             )  # fmt: skip
         if not (dcp or plan.depth_source != "none"):
             return {}
-        return build_view_priors(dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm)
+        tracks = scene.point_tracks if self.config.point_tracks else None
+        return build_view_priors(dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm, tracks)
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:

@@ -19,7 +19,7 @@ from components.data.config import DataConfig
 from components.data.images import is_image_file
 from components.data.parsers.base import DataParser
 from components.data.parsers.colmap_binary import check_binary_model
-from components.data.scene import Frame, ParsedScene
+from components.data.scene import Frame, ParsedScene, PointTracks
 from tridehaze_plugin.errors import DataError
 from tridehaze_plugin.registry import register
 
@@ -84,18 +84,35 @@ class ColmapParser(DataParser):
             )
         _attach_clean(root, frames)
         _attach_depths(root, frames)
-        points = colors = None
+        points = colors = tracks = None
         if len(rec.points3D):
             pts = [rec.points3D[k] for k in sorted(rec.points3D)]  # stable order: by point id
             points = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)  # [M, 3]
             colors = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)  # [M, 3]
+            tracks = _tracks(rec, pts)
         return ParsedScene(
             frames,
             points,
             colors,
+            point_tracks=tracks,
             train_names=_read_list(root / "train_list.txt"),
             test_names=_read_list(root / "test_list.txt"),
         )
+
+
+def _tracks(rec, pts: list) -> PointTracks:  # noqa: ANN001 - pycolmap types (imported lazily)
+    """Each point's track as (point, image) pairs; images named as the frames are (``images/<name>``)."""
+    ids = sorted(rec.images)
+    column = {iid: j for j, iid in enumerate(ids)}
+    point, view = [], []
+    for k, p in enumerate(pts):
+        for el in p.track.elements:
+            if el.image_id in column:
+                point.append(k)
+                view.append(column[el.image_id])
+    return PointTracks(
+        np.array(point, np.int64), np.array(view, np.int64), [f"images/{rec.images[i].name}" for i in ids]
+    )
 
 
 def _read_model(sparse: Path):  # noqa: ANN202 - pycolmap.Reconstruction (imported lazily)

@@ -2,13 +2,17 @@
 
 Keys beyond nerfstudio's: ``clean_file_path`` (a paired haze-free image, used for evaluation) and
 any other ``*_file_path`` key per frame (e.g. ``gt_depth_file_path``), kept in ``Frame.extras``
-for evaluation only: only ``depth_file_path`` is ever a depth prior.
+for evaluation only: only ``depth_file_path`` is ever a depth prior. At the top level,
+``point_tracks_file_path`` (with ``ply_file_path``) names an ``.npy`` of int pairs [K, 2]: a seed
+point's index in the PLY and the index in ``frames`` of a view that observed it (SfM tracks).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from components.data.config import DataConfig
 from components.data.parsers.base import (
@@ -20,7 +24,7 @@ from components.data.parsers.base import (
     resolve,
 )
 from components.data.ply import read_ply_points
-from components.data.scene import Frame, ParsedScene
+from components.data.scene import Frame, ParsedScene, PointTracks
 from tridehaze_plugin.errors import DataError
 from tridehaze_plugin.registry import register
 
@@ -49,13 +53,16 @@ class NerfstudioParser(DataParser):
         base = path.parent
         shared = {k: v for k, v in meta.items() if k != "frames"}
         frames = [_frame(base, root, shared, fm, f"{path} frames[{i}]") for i, fm in enumerate(frames_meta)]
+        names = [f.name for f in frames]  # in the file's order, which the tracks index
         frames.sort(key=lambda f: f.name)  # file order is arbitrary; the every-Nth split needs a stable one
-        points = colors = None
+        points = colors = tracks = None
         if meta.get("ply_file_path"):
             points, colors = read_ply_points(resolve(base, str(meta["ply_file_path"])))
+            if meta.get("point_tracks_file_path"):
+                tracks = _tracks(resolve(base, str(meta["point_tracks_file_path"])), len(points), names)
         train = _names(meta.get("train_filenames"), base, root, path)
         test = _names(meta.get("test_filenames", meta.get("val_filenames")), base, root, path)
-        return ParsedScene(frames, points, colors, train_names=train, test_names=test)
+        return ParsedScene(frames, points, colors, point_tracks=tracks, train_names=train, test_names=test)
 
 
 def _frame(base: Path, root: Path, shared: dict[str, Any], fm: Any, where: str) -> Frame:
@@ -77,6 +84,33 @@ def _frame(base: Path, root: Path, shared: dict[str, Any], fm: Any, where: str) 
         extras=extras,
         **json_intrinsics(merged, image, where),
     )
+
+
+def _tracks(path: Path, num_points: int, names: list[str]) -> PointTracks:
+    """The (point, frame) pairs of ``point_tracks_file_path``, checked against the PLY and the frames."""
+    fix = "write an .npy of int pairs [K, 2]: (index in the PLY, index in frames), or drop the key"
+    if not path.is_file():
+        raise DataError("point tracks file not found", where=str(path), fix=fix)
+    try:
+        pairs = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"cannot read the point tracks ({exc})", where=str(path), fix=fix) from None
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.issubdtype(pairs.dtype, np.integer):
+        raise DataError(
+            f"point tracks must be int pairs [K, 2], got {pairs.dtype} {pairs.shape}",
+            where=str(path),
+            fix=fix,
+        )
+    bad = (pairs[:, 0] < 0) | (pairs[:, 0] >= num_points) | (pairs[:, 1] < 0) | (pairs[:, 1] >= len(names))
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            f"{int(bad.sum())} point track pair(s) out of range (row {row}: {pairs[row].tolist()}; "
+            f"{num_points} points, {len(names)} frames)",
+            where=str(path),
+            fix=fix,
+        )
+    return PointTracks(pairs[:, 0], pairs[:, 1], names)
 
 
 def _names(value: Any, base: Path, root: Path, where: Path) -> list[str] | None:
