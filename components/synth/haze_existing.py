@@ -452,7 +452,8 @@ def _intrinsics(scene: SceneData, i: int) -> dict[str, float | int]:
 
 
 def _write_transforms(scene: SceneData, root: Path, frames: list[dict[str, Any]]) -> None:
-    """transforms.json with the source's splits, and its seed points (points3d.ply) when it has any."""
+    """transforms.json with the source's splits, and its seed points (points3d.ply) and their
+    tracks (points3d_tracks.npy; ``frames`` in the scene's view order) when it has any."""
     transforms: dict[str, Any] = {"camera_model": "PINHOLE", "frames": frames}
     if scene.points is not None and len(scene.points):
         rgb = None
@@ -460,6 +461,10 @@ def _write_transforms(scene: SceneData, root: Path, frames: list[dict[str, Any]]
             rgb = np.clip(scene.point_colors.numpy() * 255.0 + 0.5, 0, 255).astype(np.uint8)
         write_ply_points(root / "points3d.ply", scene.points.double().numpy(), rgb)
         transforms["ply_file_path"] = "points3d.ply"
+        if scene.point_tracks is not None:
+            pairs = np.stack([scene.point_tracks.point, scene.point_tracks.view], axis=1)  # [K, 2]
+            np.save(root / "points3d_tracks.npy", pairs.astype(np.int64))
+            transforms["point_tracks_file_path"] = "points3d_tracks.npy"
     transforms["train_filenames"] = [frames[i]["file_path"] for i in scene.train_indices]
     transforms["test_filenames"] = [frames[i]["file_path"] for i in scene.test_indices]
     write_json(root / "transforms.json", transforms)

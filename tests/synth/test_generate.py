@@ -88,7 +88,9 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
     b = make_tiny(tmp_path / "b", num_views=2, layout="street", haze="height")
     c = make_tiny(tmp_path / "c", num_views=2, layout="street", haze="height", seed=1)
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file() and p.name != "synth_meta.json")
-    assert len(files) == 1 + 1 + 1 + 2 * 5 + 1  # transforms, ply, tracks, 5 files per view, the output manifest
+    assert (
+        len(files) == 1 + 1 + 1 + 2 * 5 + 1
+    )  # transforms, ply, tracks, 5 files per view, the output manifest
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     assert (a / "images/0001.png").read_bytes() != (c / "images/0001.png").read_bytes()

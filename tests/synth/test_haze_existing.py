@@ -79,6 +79,11 @@ def test_output_loads_with_gt_as_extras(clean_dataset, tmp_path):
     assert all(p is not None for p in scene.clean_paths)
     assert scene.points is not None and len(scene.points) == len(src.points)
     assert np.allclose(scene.cameras.camtoworlds.numpy(), src.cameras.camtoworlds.numpy(), atol=1e-5)
+    # the tracks come along, to the same views by name
+    assert len(src.point_tracks.point) > 0
+    pairs = lambda s: sorted(zip(s.point_tracks.point.tolist(), [s.names()[v] for v in s.point_tracks.view]))  # noqa: E731
+    stem = lambda n: Path(n).stem  # noqa: E731
+    assert [(p, stem(n)) for p, n in pairs(scene)] == [(p, stem(n)) for p, n in pairs(src)]
 
 
 def test_wave_field_optical_depth_is_the_exact_integral():

@@ -94,3 +94,33 @@ def test_default_cloud_is_sfm_like_and_clean_stays_available(tmp_path):
     assert meta["settings"]["seed_cloud"] == "sfm"
     auto = make_tiny(tmp_path / "auto", **{**common, "num_points": None})
     assert len(read_ply_points(auto / "points3d.ply")[0]) == default_count("sfm", 9)
+
+
+def test_tracks_hold_the_views_that_see_each_point(tmp_path):
+    """Each point's track holds the view it was drawn from, and a tracked view sees the point's
+    surface at the point's depth, while the in-image views left out see something nearer."""
+    root = make_tiny(tmp_path / "t", seed_cloud="clean", num_views=9, width=64, height=48, num_points=400)
+    meta = json.loads((root / "transforms.json").read_text())
+    pairs = np.load(root / meta["point_tracks_file_path"])
+    xyz, _ = read_ply_points(root / "points3d.ply")
+    assert pairs.shape[1] == 2 and pairs.dtype.kind == "i"
+    lengths = np.bincount(pairs[:, 0], minlength=len(xyz))
+    assert lengths.min() >= 1 and np.median(lengths) >= 2
+    train = {f["file_path"] for f in meta["frames"]} - set(meta["test_filenames"])
+    assert {meta["frames"][j]["file_path"] for j in pairs[:, 1]} <= train
+    tracked = set(map(tuple, pairs.tolist()))
+    agree = {True: [], False: []}
+    for j, fr in enumerate(meta["frames"]):
+        if fr["file_path"] not in train:
+            continue
+        c2w = np.asarray(fr["transform_matrix"], np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV axes
+        pc = (xyz - c2w[:3, 3]) @ c2w[:3, :3]  # [M, 3]
+        u = meta["fl_x"] * pc[:, 0] / pc[:, 2] + meta["cx"]
+        v = meta["fl_y"] * pc[:, 1] / pc[:, 2] + meta["cy"]
+        inside = (pc[:, 2] > 0) & (u >= 0) & (u < meta["w"]) & (v >= 0) & (v < meta["h"])
+        z_true = np.load(root / fr["gt_depth_file_path"])
+        for k in np.flatnonzero(inside):
+            zt = z_true[int(v[k]), int(u[k])]
+            agree[(k, j) in tracked].append(abs(pc[k, 2] / zt - 1) < 0.05)
+    assert np.mean(agree[True]) > 0.9  # the rest: edge pixels, whose centre sees the other surface
+    assert len(agree[False]) > 50 and np.mean(agree[False]) < 0.2  # hidden behind a nearer surface
