@@ -81,9 +81,14 @@ def test_output_loads_with_gt_as_extras(clean_dataset, tmp_path):
     assert np.allclose(scene.cameras.camtoworlds.numpy(), src.cameras.camtoworlds.numpy(), atol=1e-5)
     # the tracks come along, to the same views by name
     assert len(src.point_tracks.point) > 0
-    pairs = lambda s: sorted(zip(s.point_tracks.point.tolist(), [s.names()[v] for v in s.point_tracks.view]))  # noqa: E731
-    stem = lambda n: Path(n).stem  # noqa: E731
-    assert [(p, stem(n)) for p, n in pairs(scene)] == [(p, stem(n)) for p, n in pairs(src)]
+
+    def pairs(s):
+        return sorted(
+            (int(p), Path(s.names()[v]).stem)
+            for p, v in zip(s.point_tracks.point, s.point_tracks.view, strict=True)
+        )
+
+    assert pairs(scene) == pairs(src)
 
 
 def test_wave_field_optical_depth_is_the_exact_integral():
