@@ -445,8 +445,10 @@ def world(tmp_path_factory) -> dict[str, Path]:
         (fx / name / "config.yml").write_text(body)
     (_copy_scene(scene, fx / "deep_json") / "transforms.json").write_text("[" * 100_000 + "]" * 100_000)
     for kind, value in {"nan": np.nan, "inf": np.inf, "1e30": 1e30}.items():
-        ply = json.loads((scene / "transforms.json").read_text())["ply_file_path"]
-        write_ply_points(_copy_scene(scene, fx / f"points_{kind}") / ply, np.full((50, 3), value))
+        meta = json.loads((scene / "transforms.json").read_text())
+        copy = _copy_scene(scene, fx / f"points_{kind}")
+        write_ply_points(copy / meta["ply_file_path"], np.full((50, 3), value))
+        np.save(copy / meta["point_tracks_file_path"], np.stack([np.arange(50), np.zeros(50, int)], axis=1))
     _bad_cameras(scene, fx)
     (fx / "dup_key").mkdir()
     (fx / "dup_key" / "config.yml").write_text("method_name: tri-dehaze\nmax_steps: 5\nmax_steps: 7\n")
