@@ -8,7 +8,7 @@ Output (nerfstudio layout, paths relative to the folder)::
     gt_depth/NNNN.npy          true camera z-depth in metres (``gt_depth_file_path``; sky: far bound)
     gt_transmittance/NNNN.npy  true T in (0, 1] (``gt_transmittance_file_path``)
     gt_scattering/NNNN.npy     true S [H, W, 3] (``gt_scattering_file_path``); hazy = clean * T + S
-    points3d.ply               sparse seed cloud (noisy visible surface points with clean colours)
+    points3d.ply               sparse seed cloud (noisy visible surface points, hazy colours by default)
     points3d_tracks.npy        each seed point's track: (point, frame) pairs of the train views that
                                see its true surface point unoccluded (``point_tracks_file_path``)
     synth_meta.json            settings, medium parameters, timings, mean transmittance
