@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from components.data.cameras import ViewIntrinsics
+from components.losses.depth_priors import in_image, project_points
 from components.sfm.enhance import clahe
 from components.synth.geometry import NEAR, SceneGeometry, trace
 
@@ -92,16 +93,12 @@ def seed_tracks(
     point. One traced ray per point and view."""
     pairs = []
     X = torch.from_numpy(np.asarray(surface, np.float64)).float()  # [M, 3]
+    k = torch.tensor([[K.fx, 0.0, K.cx], [0.0, K.fy, K.cy], [0.0, 0.0, 1.0]])
     for j in views:
-        c2w = np.asarray(poses[j], np.float64)
-        centre = torch.from_numpy(c2w[:3, 3]).float()
-        R = torch.from_numpy(c2w[:3, :3]).float()
-        pc = (X - centre) @ R  # [M, 3] camera coordinates (OpenCV: z forward)
-        z = pc[:, 2]
-        u = K.fx * pc[:, 0] / z.clamp_min(1e-9) + K.cx
-        v = K.fy * pc[:, 1] / z.clamp_min(1e-9) + K.cy
-        inside = (z > NEAR) & (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
-        idx = torch.nonzero(inside)[:, 0]
+        c2w = torch.from_numpy(np.asarray(poses[j], np.float64)).float()
+        centre = c2w[:3, 3]
+        pc, uv = project_points(X, torch.linalg.inv(c2w), k)  # [M, 3], [M, 2] (OpenCV axes)
+        idx = torch.nonzero(in_image(pc, uv, K.width, K.height, near=NEAR))[:, 0]
         if len(idx) == 0:
             continue
         offset = X[idx] - centre  # [m, 3]

@@ -230,7 +230,7 @@ def sfm_view_depth(
     only the points observed in this view, and no occlusion guess: every point reprojected into
     every view lets hidden surfaces show through gaps in a sparse foreground (14-17 % of the
     projections on generated courtyards and fields), and the guess that drops them also drops far
-    ground below nearer ground (docs/results/medium_recovery.md, session 43)."""
+    ground just above nearer ground in the image (docs/results/medium_recovery.md, session 43)."""
     vm, K = cam.viewmats()[0].float(), cam.Ks()[0].float()
     if tracks is None:
         return depth_from_sfm(points, vm, K, height, width)
