@@ -121,14 +121,23 @@ def loaded_tracks(
     tracks: PointTracks | None, kept: np.ndarray | None, names: list[str]
 ) -> PointTracks | None:
     """Parsed tracks re-indexed to the kept seed points (``kept`` [M] bool) and the loaded views
-    (``names``, in view order); pairs of a dropped point or view go. None without tracks or points."""
+    (``names``, in view order); pairs of a dropped point or view go. None without tracks or points.
+    A pair outside the parser's own points or frames is the parser's bug (the built-in ones check
+    their files), so it raises instead of vanishing from the prior unseen."""
     if tracks is None or kept is None or tracks.names is None:
         return None
+    F = len(tracks.names)
+    inside = (tracks.point >= 0) & (tracks.point < len(kept)) & (tracks.view >= 0) & (tracks.view < F)
+    if not inside.all():
+        bad = np.stack([tracks.point[~inside], tracks.view[~inside]], axis=1)[:3].tolist()
+        raise ValueError(
+            f"{int((~inside).sum())} parsed track pairs lie outside the parser's {len(kept)} points / "
+            f"{F} frames (first (point, frame) pairs: {bad})"
+        )
     new_point = np.cumsum(kept) - 1  # [M] parsed index -> kept index (valid where kept)
     view_of = {n: i for i, n in enumerate(names)}
     new_view = np.array([view_of.get(n, -1) for n in tracks.names], np.int64)  # [F]
-    ok = (tracks.point >= 0) & (tracks.point < len(kept)) & (tracks.view >= 0) & (tracks.view < len(new_view))
-    p, v = tracks.point[ok], new_view[tracks.view[ok]]
+    p, v = tracks.point, new_view[tracks.view]
     ok = kept[p] & (v >= 0)
     return PointTracks(new_point[p[ok]], v[ok])
 

@@ -119,3 +119,17 @@ def test_the_prior_leaves_out_an_untracked_hidden_point():
         pts, PointTracks(np.array([0]), np.array([1])), 0, cam, 7, 9
     )  # seen by view 1 only
     assert not v1.any()
+
+
+def test_a_parser_pair_outside_its_own_points_or_frames_raises():
+    """A plugin parser's bug must surface, not silently thin the depth prior."""
+    from components.data.loader import loaded_tracks
+
+    kept = np.array([True, False, True])
+    good = PointTracks(np.array([0, 1, 2]), np.array([0, 1, 1]), names=["a", "b"])
+    got = loaded_tracks(good, kept, ["b", "a"])  # loaded views in another order
+    assert sorted(zip(got.point.tolist(), got.view.tolist(), strict=True)) == [(0, 1), (1, 0)]
+    for point, view in ([3, 0], [0, 2], [-1, 0]):
+        bad = PointTracks(np.array([0, point]), np.array([0, view]), names=["a", "b"])
+        with pytest.raises(ValueError, match="outside the parser's 3 points / 2 frames"):
+            loaded_tracks(bad, kept, ["a", "b"])
