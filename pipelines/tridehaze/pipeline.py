@@ -96,10 +96,13 @@ class GaussianPipelineConfig(PipelineConfig):
     """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
     channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
     every training view has one, else SfM when the scene has seed points, else warmup."""
-    point_tracks: bool = True
+    point_tracks: bool = False
     """Build the ``sfm`` pseudo-depth of each view from the points its SfM tracks say it observed,
     where the dataset records tracks (COLMAP models, td-synth scenes); off: every point reprojected
-    into every view, with a guess at occlusion (what datasets without tracks get)."""
+    into every view, with a guess at occlusion (what datasets without tracks get). Off by default:
+    +0.6 dB on generated scenes, whose tracks hold every view that sees a point, but -0.5 to -1.5 dB
+    on hazed beer at two seeds, whose COLMAP tracks (median 4 views) halve the prior's coverage
+    (docs/results/medium_recovery.md, sessions 43-44)."""
     warmup_steps: Annotated[int, NonNegative] = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
     lambda_depth: Annotated[float, NonNegative] = 0.0

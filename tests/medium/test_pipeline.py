@@ -82,7 +82,7 @@ ABLATIONS = [
     ("--pipeline.light-seen-share", "0.2"),
     ("--pipeline.medium-ignores-backdrop",),
     ("--pipeline.light-colour-fit",),
-    ("--pipeline.no-point-tracks",),
+    ("--pipeline.point-tracks",),
 ]
 
 
