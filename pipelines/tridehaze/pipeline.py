@@ -96,12 +96,14 @@ class GaussianPipelineConfig(PipelineConfig):
     """Pseudo-depth for the depth-correlation loss: the dataset's depth files, -ln T of the dark
     channel, sparse SfM depth, a short haze-agnostic warm-up's depth, or none. ``auto``: files when
     every training view has one, else SfM when the scene has seed points, else warmup."""
-    point_tracks: bool = False
-    """Build the ``sfm`` pseudo-depth of each view from the points its SfM tracks say it observed,
-    where the dataset records tracks (COLMAP models, td-synth scenes); off: every point reprojected
-    into every view, with a guess at occlusion (what datasets without tracks get). Off by default:
-    +0.6 dB on generated scenes, whose tracks hold every view that sees a point, but -0.5 to -1.5 dB
-    on hazed beer at two seeds, whose COLMAP tracks (median 4 views) halve the prior's coverage
+    point_tracks: Literal["off", "only", "union"] = "off"
+    """How the ``sfm`` pseudo-depth uses SfM tracks where the dataset records them (COLMAP models,
+    td-synth scenes). ``off``: every point reprojected into every view, with a guess at occlusion
+    (what datasets without tracks get). ``only``: each view's tracked points alone, no guess.
+    ``union``: the tracked points without the guess, the others reprojected with it (a track's
+    absence is a failed match as often as a hidden point). Off by default: ``only`` gains 0.6 dB on
+    generated scenes, whose tracks hold every view that sees a point, but loses 0.5-1.5 dB on hazed
+    beer at two seeds, whose COLMAP tracks (median 4 views) halve the prior's coverage
     (docs/results/medium_recovery.md, sessions 43-44)."""
     warmup_steps: Annotated[int, NonNegative] = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
@@ -453,8 +455,11 @@ class GaussianPipeline(Pipeline):
             )  # fmt: skip
         if not (dcp or plan.depth_source != "none"):
             return {}
-        tracks = scene.point_tracks if self.config.point_tracks else None
-        return build_view_priors(dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm, tracks)
+        tracks = scene.point_tracks if self.config.point_tracks != "off" else None
+        return build_view_priors(
+            dm, dm.train_indices, dcp, plan.depth_source, scene.points, warm, tracks,
+            union=self.config.point_tracks == "union",
+        )  # fmt: skip
 
     # ----------------------------------------------------------------------------- schedule
     def stage_at(self, step: int) -> int:

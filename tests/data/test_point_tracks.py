@@ -121,6 +121,22 @@ def test_the_prior_leaves_out_an_untracked_hidden_point():
     assert not v1.any()
 
 
+def test_the_union_prior_adds_untracked_points_where_no_tracked_one_lands():
+    """Real tracks miss views that see a point: ``union`` keeps the tracked pixels as they are and
+    fills the rest from the other points, reprojected with the occlusion guess."""
+    cam = _camera_at_origin()
+    near = torch.tensor([[0.0, 0.1, 1.0]])  # pixel (4, 4), z 1, tracked in view 0
+    far = torch.tensor([[0.0, 0.0, 5.0]])  # pixel (3, 4), z 5, tracked in view 0
+    lone = torch.tensor([[-0.3, -0.2, 1.0]])  # pixel (1, 1), z 1, in no track of view 0
+    pts = torch.cat([near, far, lone])
+    tracks = PointTracks(np.array([0, 1, 2]), np.array([0, 0, 1]))
+    d_only, v_only = sfm_view_depth(pts, tracks, 0, cam, 7, 9)
+    d, v = sfm_view_depth(pts, tracks, 0, cam, 7, 9, union=True)
+    assert not v_only[1, 1] and v[1, 1] and d[1, 1] == pytest.approx(1.0)
+    assert torch.equal(d[v_only], d_only[v_only])  # the tracked pixels unchanged (far ground kept)
+    assert v[2, 4] and d[2, 4] == pytest.approx(5.0)
+
+
 def test_a_parser_pair_outside_its_own_points_or_frames_raises():
     """A plugin parser's bug must surface, not silently thin the depth prior."""
     from components.data.loader import loaded_tracks

@@ -82,7 +82,8 @@ ABLATIONS = [
     ("--pipeline.light-seen-share", "0.2"),
     ("--pipeline.medium-ignores-backdrop",),
     ("--pipeline.light-colour-fit",),
-    ("--pipeline.point-tracks",),
+    ("--pipeline.point-tracks", "only"),
+    ("--pipeline.point-tracks", "union"),
 ]
 
 
