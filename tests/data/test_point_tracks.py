@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from components.data.cameras import Cameras
-from components.data.loader import load_scene
+from components.data.loader import load_scene, loaded_tracks
 from components.data.ply import write_ply_points
 from components.data.scene import PointTracks
 from pipelines.tridehaze.priors import sfm_view_depth
@@ -139,8 +139,6 @@ def test_the_union_prior_adds_untracked_points_where_no_tracked_one_lands():
 
 def test_a_parser_pair_outside_its_own_points_or_frames_raises():
     """A plugin parser's bug must surface, not silently thin the depth prior."""
-    from components.data.loader import loaded_tracks
-
     kept = np.array([True, False, True])
     good = PointTracks(np.array([0, 1, 2]), np.array([0, 1, 1]), names=["a", "b"])
     got = loaded_tracks(good, kept, ["b", "a"])  # loaded views in another order
