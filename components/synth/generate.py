@@ -9,8 +9,9 @@ Output (nerfstudio layout, paths relative to the folder)::
     gt_transmittance/NNNN.npy  true T in (0, 1] (``gt_transmittance_file_path``)
     gt_scattering/NNNN.npy     true S [H, W, 3] (``gt_scattering_file_path``); hazy = clean * T + S
     points3d.ply               sparse seed cloud (noisy visible surface points, hazy colours by default)
-    points3d_tracks.npy        each seed point's track: (point, frame) pairs of the train views that
-                               see its true surface point unoccluded (``point_tracks_file_path``)
+    points3d_tracks.npy        each seed point's track: (point, frame) pairs of train views that see
+                               its true surface point unoccluded (``point_tracks_file_path``): as
+                               short as COLMAP's on hazy photos for the sfm cloud, complete for clean
     synth_meta.json            settings, medium parameters, timings, mean transmittance
 
 The ``gt_*`` keys land in ``SceneData.extra_paths``, never in ``depth_paths``: true depth would be
@@ -77,8 +78,9 @@ class SceneConfig:
     """Multiplies the preset's extinction (2 = twice as thick)."""
     seed_cloud: Literal["sfm", "clean"] = "sfm"
     """Seed points as SfM on hazy photos gives them (sparse, where the hazy view has contrast, depth
-    noise growing with distance, 5 % outliers; measured, docs/synth.md), or ``clean``: true surface
-    points drawn uniformly with only ``--point-noise`` jitter (a flattering prior, for comparison)."""
+    noise growing with distance, 5 % outliers, tracks of about three views; measured, docs/synth.md),
+    or ``clean``: true surface points drawn uniformly with only ``--point-noise`` jitter and complete
+    tracks (a flattering prior, for comparison)."""
     num_points: int | None = None
     """Seed points over the train views (None: the cloud's own default, sfm 30 per train view and
     at least 64, clean 4000)."""
@@ -202,7 +204,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
         num_points = default_count(cfg.seed_cloud, len(train))
     per_view_points = -(-num_points // max(len(train), 1))
     t_clean = t_haze = t_write = 0.0
-    frames, pts, cols, surface, mean_T = [], [], [], [], []
+    frames, pts, cols, surface, source, mean_T = [], [], [], [], [], []
     T_hist = np.zeros(1001, dtype=np.int64)  # histogram of T for the median without keeping all maps
     for i, c2w in enumerate(poses):
         t0 = time.perf_counter()
@@ -220,6 +222,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
             pts.append(p)
             cols.append(c)
             surface.append(x)
+            source.append(np.full(len(x), i))
         t_clean += t1 - t0
         t_haze += t2 - t1
         t_write += time.perf_counter() - t2
@@ -227,7 +230,10 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     rgb = np.concatenate(cols)[:num_points] if cols else np.zeros((0, 3), np.uint8)
     write_ply_points(root / "points3d.ply", xyz, rgb)
     true_xyz = np.concatenate(surface)[:num_points] if surface else np.zeros((0, 3))
-    np.save(root / "points3d_tracks.npy", seed_tracks(layout.geometry, true_xyz, poses, K, train))
+    src = np.concatenate(source)[:num_points] if source else np.zeros(0, np.int64)
+    track_rng = np.random.default_rng([cfg.seed, 4343])  # its own stream: the cloud stays as it was
+    tracks = seed_tracks(layout.geometry, true_xyz, poses, K, train, cfg.seed_cloud, src, track_rng)
+    np.save(root / "points3d_tracks.npy", tracks)
     transforms = {
         "camera_model": "PINHOLE",
         **{"fl_x": K.fx, "fl_y": K.fy, "cx": K.cx, "cy": K.cy, "w": K.width, "h": K.height},

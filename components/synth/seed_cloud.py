@@ -75,6 +75,15 @@ def pick_pixels(
     return np.sort(rng.choice(idx, size=k, replace=False, p=w / w.sum()))
 
 
+SFM_TRACK_KEEP = 0.6
+"""Chance that an ``sfm`` track keeps a view that sees the point within ``SFM_TRACK_ANGLE`` of the
+view it was found in. With the angle below it gives COLMAP's median track of 3 views on generated
+hazy views (5 scenes at 320x240, 32 views; docs/results/track_completeness.md); td-synth's
+complete tracks had 11-14."""
+SFM_TRACK_ANGLE = 30.0
+"""Degrees between a view's ray to the point and the finding view's ray beyond which an ``sfm``
+track never keeps it (COLMAP: 0.03-0.06 of the seeing views 20-40 degrees from the nearest track
+view are in the track, none beyond 40)."""
 TRACK_TOLERANCE = 1e-3
 """A track view must see the point's surface within this share of its distance (the hit's own
 rounding; anything nearer along the ray is an occluder)."""
@@ -86,13 +95,26 @@ def seed_tracks(
     poses: list[np.ndarray],
     K: ViewIntrinsics,
     views: list[int],
+    model: str = "clean",
+    source: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
 ) -> np.ndarray:
     """[P, 2] (point, view) pairs: the ``views`` (indices into ``poses``, OpenCV camera-to-world)
     whose image holds the true ``surface`` point [M, 3] (before the cloud's noise) with nothing in
-    front of it: the track SfM would record, where matching succeeds in every view that sees the
-    point. One traced ray per point and view."""
+    front of it. ``clean``: all of them (matching succeeds everywhere). ``sfm``: what COLMAP keeps
+    on hazy photos: the point's ``source`` view [M] (where it was found) always, another seeing view
+    with chance ``SFM_TRACK_KEEP`` when its ray is within ``SFM_TRACK_ANGLE`` of the source's, else
+    never (drawn from ``rng``). One traced ray per point and view."""
+    if model == "sfm" and (source is None or rng is None):
+        raise ValueError("sfm tracks need each point's source view and a random generator")
     pairs = []
     X = torch.from_numpy(np.asarray(surface, np.float64)).float()  # [M, 3]
+    if model == "sfm":
+        src_c = torch.stack(
+            [torch.from_numpy(np.asarray(poses[int(j)], np.float64)[:3, 3]).float() for j in source]
+        )
+        src_ray = torch.nn.functional.normalize(X - src_c, dim=-1) if len(X) else X  # [M, 3]
+        cos_max = float(np.cos(np.radians(SFM_TRACK_ANGLE)))
     k = torch.tensor([[K.fx, 0.0, K.cx], [0.0, K.fy, K.cy], [0.0, 0.0, 1.0]])
     for j in views:
         c2w = torch.from_numpy(np.asarray(poses[j], np.float64)).float()
@@ -105,6 +127,10 @@ def seed_tracks(
         dist = offset.norm(dim=-1)
         hit = trace(geometry, centre.expand(len(idx), 3), offset / dist[:, None])
         seen = hit.t >= dist * (1.0 - TRACK_TOLERANCE)  # [m] no surface in front of the point
+        if model == "sfm":
+            near = (src_ray[idx] * (offset / dist[:, None])).sum(-1) >= cos_max  # [m]
+            keep = near & torch.from_numpy(rng.random(len(idx)) < SFM_TRACK_KEEP)
+            seen &= keep | torch.from_numpy(source[idx.numpy()] == j)
         pts = idx[seen].numpy()
         pairs.append(np.stack([pts, np.full(len(pts), j)], axis=1))
     return np.concatenate(pairs).astype(np.int64) if pairs else np.zeros((0, 2), np.int64)

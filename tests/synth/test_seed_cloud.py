@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from components.data.cameras import ViewIntrinsics
 from components.data.ply import read_ply_points
 from components.synth.seed_cloud import (
     SFM_MIN_POINTS,
@@ -124,3 +125,35 @@ def test_tracks_hold_the_views_that_see_each_point(tmp_path):
             agree[(k, j) in tracked].append(abs(pc[k, 2] / zt - 1) < 0.05)
     assert np.mean(agree[True]) > 0.9  # the rest: edge pixels, whose centre sees the other surface
     assert len(agree[False]) > 50 and np.mean(agree[False]) < 0.2  # hidden behind a nearer surface
+
+
+def test_sfm_tracks_are_short_like_colmaps():
+    """``sfm`` tracks keep the finding view, then a share of the seeing views near its ray only:
+    a subset of the complete tracks, median length far below theirs (COLMAP: 3 of 8-11)."""
+    from components.synth.generate import camera_poses
+    from components.synth.layouts import make_layout
+    from components.synth.render import render_clean
+    from components.synth.seed_cloud import SFM_TRACK_ANGLE, SFM_TRACK_KEEP, seed_tracks
+
+    layout = make_layout("courtyard", 3)
+    _, poses = camera_poses(layout, "auto", 16)
+    K = ViewIntrinsics.from_fov(64, 48, 60.0)
+    view = render_clean(layout, poses[5], K, 1)
+    pix = np.flatnonzero(view.hit.numpy())[::7][:300]
+    surface = view.origins.numpy()[pix] + view.t_end.numpy()[pix, None] * view.dirs.numpy()[pix]  # [M, 3]
+    views = list(range(16))
+    source = np.full(len(surface), 5)
+    complete = seed_tracks(layout.geometry, surface, poses, K, views)
+    short = seed_tracks(layout.geometry, surface, poses, K, views, "sfm", source, np.random.default_rng(0))
+    full, kept = set(map(tuple, complete.tolist())), set(map(tuple, short.tolist()))
+    assert kept <= full
+    assert {(k, 5) for k in range(len(surface)) if (k, 5) in full} <= kept  # the finding view stays
+    ray = lambda k, j: (surface[k] - poses[j][:3, 3]) / np.linalg.norm(surface[k] - poses[j][:3, 3])  # noqa: E731
+    angle = lambda k, j: np.degrees(np.arccos(np.clip(ray(k, j) @ ray(k, 5), -1, 1)))  # noqa: E731
+    near = [(k, j) for k, j in full if j != 5 and angle(k, j) < SFM_TRACK_ANGLE]
+    assert all(angle(k, j) < SFM_TRACK_ANGLE + 1e-3 for k, j in kept if j != 5)
+    assert len(near) > 200 and abs(np.mean([p in kept for p in near]) - SFM_TRACK_KEEP) < 0.08
+    length = lambda p: np.median(np.bincount(p[:, 0], minlength=len(surface)))  # noqa: E731
+    assert length(short) < 0.6 * length(complete)
+    with pytest.raises(ValueError, match="source view"):
+        seed_tracks(layout.geometry, surface, poses, K, views, "sfm")
