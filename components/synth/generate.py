@@ -191,6 +191,15 @@ def write_view(root: Path, stem: str, view, hz) -> dict[str, str]:
     return files
 
 
+def write_tracks(path: Path, cfg: SceneConfig, layout: Layout, poses, K, train, surface, source, n) -> None:
+    """The first ``n`` seed points' tracks from their true ``surface`` points and ``source`` views
+    (per-view lists), drawn from a random stream of their own so the cloud stays as it was."""
+    true_xyz = np.concatenate(surface)[:n] if surface else np.zeros((0, 3))
+    src = np.concatenate(source)[:n] if source else np.zeros(0, np.int64)
+    rng = np.random.default_rng([cfg.seed, 4343])
+    np.save(path, seed_tracks(layout.geometry, true_xyz, poses, K, train, cfg.seed_cloud, src, rng))
+
+
 def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     t_start = time.perf_counter()
     layout = make_layout(cfg.layout, cfg.seed)
@@ -229,11 +238,7 @@ def _render_all(cfg: SceneConfig, root: Path) -> dict[str, Any]:
     xyz = np.concatenate(pts)[:num_points] if pts else np.zeros((0, 3))
     rgb = np.concatenate(cols)[:num_points] if cols else np.zeros((0, 3), np.uint8)
     write_ply_points(root / "points3d.ply", xyz, rgb)
-    true_xyz = np.concatenate(surface)[:num_points] if surface else np.zeros((0, 3))
-    src = np.concatenate(source)[:num_points] if source else np.zeros(0, np.int64)
-    track_rng = np.random.default_rng([cfg.seed, 4343])  # its own stream: the cloud stays as it was
-    tracks = seed_tracks(layout.geometry, true_xyz, poses, K, train, cfg.seed_cloud, src, track_rng)
-    np.save(root / "points3d_tracks.npy", tracks)
+    write_tracks(root / "points3d_tracks.npy", cfg, layout, poses, K, train, surface, source, num_points)
     transforms = {
         "camera_model": "PINHOLE",
         **{"fl_x": K.fx, "fl_y": K.fy, "cx": K.cx, "cy": K.cy, "w": K.width, "h": K.height},
