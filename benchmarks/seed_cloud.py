@@ -324,6 +324,13 @@ def plot(results: dict, path: Path) -> None:
     axes[1].set_xticks([0, 1, 2], ["near", "mid", "far"])
     axes[1].set_ylabel("median |depth error| (%)")
     axes[1].set_yscale("log")
+    save_figure(fig, axes, path)
+
+
+def save_figure(fig, axes, path: Path) -> None:
+    """One legend entry per label on each axis (lines share labels per cloud), grid, save, close."""
+    import matplotlib.pyplot as plt
+
     for ax in axes:
         h, lab = ax.get_legend_handles_labels()
         ax.legend(

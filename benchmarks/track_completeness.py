@@ -192,14 +192,7 @@ def plot(results: dict, path: Path) -> None:
     for ax in axes:
         ax.set_ylabel("share of seeing views in the track")
         ax.set_ylim(0, 1.05)
-        h, lab = ax.get_legend_handles_labels()
-        ax.legend(
-            dict(zip(lab, h, strict=False)).values(), dict(zip(lab, h, strict=False)).keys(), fontsize=8
-        )
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    sc.save_figure(fig, axes, path)
 
 
 def main() -> None:
