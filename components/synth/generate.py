@@ -21,6 +21,7 @@ a prior no real capture has.
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import time
 from collections.abc import Iterator
@@ -41,6 +42,11 @@ from components.synth.seed_cloud import default_count, pick_pixels, place_points
 from components.synth.trajectories import orbit_poses, walk_poses
 from components.synth.writer import frame_entry, staged_output, write_json, write_map, write_rgb
 from tridehaze_plugin.errors import ConfigError
+
+GENERATOR_VERSION = 2
+"""Bumped whenever the same settings give different files. 2: `sfm` seed clouds carry tracks as
+short as COLMAP's (session 45); 1 (no ``generator_version`` in ``synth_meta.json``): complete
+tracks."""
 
 LayoutName = Literal["street", "courtyard", "room", "field"]
 HazeName = Literal["none", "homogeneous", "height", "patchy", "dense", "uniform", "sunlit"]
@@ -173,6 +179,27 @@ def generate_scene(cfg: SceneConfig) -> dict[str, Any]:
     return meta
 
 
+OUTPUT_NEUTRAL = ("output_dir", "overwrite", "threads")
+"""Settings that do not change the files written."""
+
+
+def mismatch(path: Path, cfg: SceneConfig) -> str | None:
+    """Why the dataset at ``path`` is not what ``generate_scene(cfg)`` writes now (None: it is);
+    a set reused across generator changes would silently mix old and new scenes."""
+    try:
+        meta = json.loads((path / "synth_meta.json").read_text(encoding="utf-8"))
+        version, settings = meta.get("generator_version", 1), meta["settings"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "it holds no readable synth_meta.json (not written by td-synth scene)"
+    if version != GENERATOR_VERSION:
+        return f"td-synth wrote it at generator version {version}, today's is {GENERATOR_VERSION}"
+    want = {
+        k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items() if k not in OUTPUT_NEUTRAL
+    }
+    diff = [k for k, v in want.items() if settings.get(k) != v]
+    return f"its settings differ ({', '.join(diff)})" if diff else None
+
+
 def write_view(root: Path, stem: str, view, hz) -> dict[str, str]:
     """Write one view's hazy image, clean reference and true depth / T / S maps; returns the
     frame's ``*_file_path`` entries (relative to ``root``)."""
@@ -276,6 +303,7 @@ def _meta(
     median = float(np.searchsorted(np.cumsum(T_hist), T_hist.sum() / 2.0) / 1000.0)
     return {
         "generator": "td-synth scene",
+        "generator_version": GENERATOR_VERSION,
         "settings": settings,
         "layout": layout.name,
         "trajectory": kind,

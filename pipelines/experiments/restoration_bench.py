@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from components.synth.generate import SceneConfig, generate_scene
+from components.synth.generate import SceneConfig, generate_scene, mismatch
 from pipelines.engine.medium_recovery import OBSERVABLE_T
 from pipelines.experiments.ablation import Variant
 from pipelines.experiments.tables import fmt_number, mean_finite, nested
+from tridehaze_plugin.errors import DataError
 
 
 @dataclass(frozen=True)
@@ -135,8 +136,8 @@ def unknown_scenes(root: Path, names: list[str], scene_set: SceneSet = BENCHMARK
 def build(
     root: Path, names: list[str] | None = None, log=print, scene_set: SceneSet = BENCHMARK
 ) -> list[Path]:
-    """Generate the set's scenes (``names``: a subset) missing under ``root`` (seconds each);
-    returns their folders, then those of the other named datasets under ``root`` (checked by
+    """Generate the set's scenes (``names``: a subset) missing under ``root`` (seconds each; one
+    already there must be what the generator writes today, or it is refused); returns their folders, then those of the other named datasets under ``root`` (checked by
     ``unknown_scenes``). Without ``names``: the generated set only, so the targets keep their
     meaning."""
     paths = []
@@ -144,19 +145,24 @@ def build(
         path = root / name
         if names and path.name not in names:
             continue
+        cfg = SceneConfig(
+            output_dir=path,
+            layout=layout,
+            haze=haze,
+            seed=scene_set.seed,
+            num_views=scene_set.num_views,
+            width=scene_set.width,
+            height=scene_set.height,
+        )
         if not is_dataset(path):
-            generate_scene(
-                SceneConfig(
-                    output_dir=path,
-                    layout=layout,
-                    haze=haze,
-                    seed=scene_set.seed,
-                    num_views=scene_set.num_views,
-                    width=scene_set.width,
-                    height=scene_set.height,
-                )
-            )
+            generate_scene(cfg)
             log(f"generated {path.name}")
+        elif (why := mismatch(path, cfg)) is not None:
+            raise DataError(
+                f"the {scene_set.name} set's scene {name} cannot be reused: {why}",
+                where=str(path),
+                fix="pass a new --set-dir (td-bench generates the set there), or delete that folder",
+            )
         paths.append(path)
     return paths + [root / n for n in dict.fromkeys(names or []) if n not in scene_set.names()]
 

@@ -71,6 +71,44 @@ def test_the_holdout_set_shares_no_scene_with_the_benchmark_and_is_built_at_its_
     assert (made[0].seed, made[0].width, made[0].num_views) == (5, 96, 24)  # the benchmark's, by default
 
 
+def test_a_scene_folder_from_another_generator_or_other_settings_is_refused_not_reused(tmp_path, monkeypatch):
+    """A set built before a generator change (session 45's short tracks) must not be mixed in."""
+    from dataclasses import asdict
+
+    from components.synth.generate import GENERATOR_VERSION, SceneConfig, mismatch
+    from pipelines.experiments import restoration_bench as rb
+    from tridehaze_plugin.errors import DataError
+
+    made = []
+    monkeypatch.setattr(rb, "generate_scene", made.append)
+    folder = tmp_path / "room-uniform"
+    folder.mkdir()
+    (folder / "transforms.json").write_text("{}")
+    cfg = SceneConfig(output_dir=folder, layout="room", haze="uniform", seed=BENCHMARK.seed,
+                      num_views=BENCHMARK.num_views, width=BENCHMARK.width, height=BENCHMARK.height)  # fmt: skip
+    settings = {k: (str(v) if k == "output_dir" else v) for k, v in asdict(cfg).items()}
+    meta = {"generator_version": GENERATOR_VERSION, "settings": settings}
+    (folder / "synth_meta.json").write_text(json.dumps(meta))
+    assert mismatch(folder, cfg) is None
+    assert build(tmp_path, ["room-uniform"], log=lambda _: None) == [folder] and made == []  # reused
+    for change, why in ((dict(generator_version=None), "generator version 1"),
+                        (dict(settings={**settings, "width": 160}), "settings differ (width)")):  # fmt: skip
+        (folder / "synth_meta.json").write_text(
+            json.dumps({k: v for k, v in {**meta, **change}.items() if v})
+        )
+        assert why in mismatch(folder, cfg)
+        with pytest.raises(DataError, match="cannot be reused") as err:
+            build(tmp_path, ["room-uniform"], log=lambda _: None)
+        assert why in str(err.value) and str(folder) in str(err.value) and "--set-dir" in str(err.value)
+    (folder / "synth_meta.json").unlink()
+    assert "no readable synth_meta.json" in mismatch(folder, cfg)
+    r = subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.bench", "restoration", "--set-dir", str(tmp_path),
+                        "--scenes", "room-uniform", "--output-dir", str(tmp_path / "out")],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2 and "cannot be reused" in r.stderr and "Traceback" not in r.stderr
+    assert made == [] and sorted(p.name for p in folder.iterdir()) == ["transforms.json"]  # nothing touched
+
+
 def test_rows_average_seeds_and_targets_name_the_worst_scene():
     results = {
         42: [_r("a", "tri-dehaze", 24.0, medium={"t_mae": 0.04, "s_mae": 0.02}, observable={"psnr": 26.0, "share": 0.8}),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,8 @@ import pytest
 from components.data.config import DataConfig
 from components.data.images import read_image
 from components.data.loader import load_scene
-from tests.synth.conftest import make_tiny
+from components.synth.generate import GENERATOR_VERSION, mismatch
+from tests.synth.conftest import TINY, make_tiny
 from tridehaze_plugin.errors import UserError
 
 
@@ -36,6 +38,9 @@ def test_loader_reads_it(tiny_dataset, tmp_path):
     assert int(scene.cameras.width[0]) == 40 and int(scene.cameras.height[0]) == 30
     meta = json.loads((tiny_dataset / "synth_meta.json").read_text())
     assert 0 < meta["mean_transmittance"] < 1 and meta["medium"]["preset"] == "patchy"
+    # the folder says which generator wrote it, so a set is not reused across generator changes
+    assert meta["generator_version"] == GENERATOR_VERSION and mismatch(tiny_dataset, TINY) is None
+    assert "num_views" in mismatch(tiny_dataset, replace(TINY, num_views=10))
 
 
 def test_stored_maps_obey_the_image_formation(tiny_dataset):
