@@ -131,8 +131,9 @@ def align(rec, views: dict[str, dict]) -> tuple[float, np.ndarray, np.ndarray, n
     return s, R, t, np.linalg.norm(est_c @ (s * R).T + t - ref_c, axis=1)
 
 
-def sfm_observations(model: Path, views: dict[str, dict]) -> tuple[dict, int]:
-    """Observations of the SfM points in the true frame, and the number of registered views."""
+def load_aligned(model: Path, views: dict[str, dict]):
+    """An SfM model and its similarity (s, R, t) to the true frame; raises on a failed or wrong
+    reconstruction (too few views registered, cameras far from the true ones)."""
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(model))
@@ -146,6 +147,12 @@ def sfm_observations(model: Path, views: dict[str, dict]) -> tuple[dict, int]:
             f"wrong reconstruction: median camera centre error {100 * np.median(err) / extent:.0f} % of the "
             f"camera extent ({len(rec.images)} views registered)"
         )
+    return rec, s, R, t
+
+
+def sfm_observations(model: Path, views: dict[str, dict]) -> tuple[dict, int]:
+    """Observations of the SfM points in the true frame, and the number of registered views."""
+    rec, s, R, t = load_aligned(model, views)
     rows: dict[str, list] = {"z": [], "z_true": [], "T": [], "inside": [], "point": []}
     for pid, p in rec.points3D.items():
         x = s * R @ np.asarray(p.xyz) + t  # [3] true frame

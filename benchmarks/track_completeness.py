@@ -76,10 +76,7 @@ def pair_rows(x: np.ndarray, track: set[str], names: list[str], views: dict, cen
 
 
 def sfm_rows(model: Path, views: dict[str, dict]) -> tuple[list, list[int]]:
-    import pycolmap
-
-    rec = pycolmap.Reconstruction(str(model))
-    s, R, t, _ = sc.align(rec, views)
+    rec, s, R, t = sc.load_aligned(model, views)  # raises on a failed or wrong reconstruction
     names = [im.name for im in rec.images.values()]
     cen = centres(views)
     rows, lengths = [], []
@@ -208,7 +205,6 @@ def main() -> None:
         entry = {}
         try:
             model = sc.run_sfm(scene, args.work, args.enhance)
-            sc.sfm_observations(model, views)  # raises on a failed or wrong reconstruction
             entry["sfm"] = summarise(*sfm_rows(model, views))
         except Exception as e:  # noqa: BLE001 (a failed reconstruction is a row, not a crash)
             entry["sfm"] = {"error": str(e).splitlines()[0][:200]}
