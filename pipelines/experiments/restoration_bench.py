@@ -137,9 +137,10 @@ def build(
     root: Path, names: list[str] | None = None, log=print, scene_set: SceneSet = BENCHMARK
 ) -> list[Path]:
     """Generate the set's scenes (``names``: a subset) missing under ``root`` (seconds each; one
-    already there must be what the generator writes today, or it is refused); returns their folders, then those of the other named datasets under ``root`` (checked by
-    ``unknown_scenes``). Without ``names``: the generated set only, so the targets keep their
-    meaning."""
+    already there must be what the generator writes today, or it is refused, so a set made by an
+    older generator is never measured as today's); returns their folders, then those of the other
+    named datasets under ``root`` (checked by ``unknown_scenes``). Without ``names``: the generated
+    set only, so the targets keep their meaning."""
     paths = []
     for (layout, haze), name in zip(scene_set.scenes, scene_set.names(), strict=True):
         path = root / name
