@@ -183,6 +183,15 @@ OUTPUT_NEUTRAL = ("output_dir", "overwrite", "threads")
 """Settings that do not change the files written."""
 
 
+def recorded_settings(cfg: SceneConfig) -> dict[str, Any]:
+    """``cfg`` as ``synth_meta.json`` records it (paths as text; where it went and whether it
+    overwrote left out)."""
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    settings.pop("output_dir")
+    settings.pop("overwrite")
+    return settings
+
+
 def mismatch(path: Path, cfg: SceneConfig) -> str | None:
     """Why the dataset at ``path`` is not what ``generate_scene(cfg)`` writes now (None: it is);
     a set reused across generator changes would silently mix old and new scenes."""
@@ -193,9 +202,7 @@ def mismatch(path: Path, cfg: SceneConfig) -> str | None:
         return "it holds no readable synth_meta.json (not written by td-synth scene)"
     if version != GENERATOR_VERSION:
         return f"td-synth wrote it at generator version {version}, today's is {GENERATOR_VERSION}"
-    want = {
-        k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items() if k not in OUTPUT_NEUTRAL
-    }
+    want = {k: v for k, v in recorded_settings(cfg).items() if k not in OUTPUT_NEUTRAL}
     diff = [k for k, v in want.items() if settings.get(k) != v]
     return f"its settings differ ({', '.join(diff)})" if diff else None
 
@@ -297,9 +304,7 @@ def _meta(
     T_hist: np.ndarray,
     n_pts: int,
 ) -> dict[str, Any]:
-    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
-    settings.pop("output_dir")
-    settings.pop("overwrite")
+    settings = recorded_settings(cfg)
     median = float(np.searchsorted(np.cumsum(T_hist), T_hist.sum() / 2.0) / 1000.0)
     return {
         "generator": "td-synth scene",
