@@ -101,11 +101,12 @@ class GaussianPipelineConfig(PipelineConfig):
     td-synth scenes). ``off``: every point reprojected into every view, with a guess at occlusion
     (what datasets without tracks get). ``only``: each view's tracked points alone, no guess.
     ``union``: the tracked points without the guess, the others reprojected with it (a track's
-    absence is a failed match as often as a hidden point). Off by default: ``only`` gains 0.6 dB on
-    generated scenes, whose tracks hold every view that sees a point, but loses 0.5-1.5 dB on hazed
-    beer at two seeds, whose COLMAP tracks (median 4 views) halve the prior's coverage; ``union``,
-    paired, ties on beer and the holdout set and gains 0.2 dB on statue; it is still to be measured
-    paired on the benchmark (docs/results/medium_recovery.md, sessions 43-47)."""
+    absence is a failed match as often as a hidden point). ``tri-dehaze`` uses ``union``: paired on
+    one machine it gains 0.6 dB on the benchmark at two seeds, ties on the holdout set and hazed
+    beer, gains 0.2 dB on hazed statue; ``only`` gains as much on generated scenes but loses 1-1.5
+    dB on beer, whose COLMAP tracks (median 4 views) halve the prior's coverage
+    (docs/results/medium_recovery.md, sessions 43-49). Off here, for datasets without tracks and
+    the paper's preset."""
     warmup_steps: Annotated[int, NonNegative] = 300
     """Steps of the haze-agnostic warm-up that produces the ``warmup`` pseudo-depth."""
     lambda_depth: Annotated[float, NonNegative] = 0.0
