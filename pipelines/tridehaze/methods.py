@@ -85,7 +85,7 @@ def tri_dehaze() -> TrainerConfig:
     it observed, and reprojects the untracked ones with the occlusion guess only where no tracked
     point lands: the guess alone put hidden points on visible surfaces (session 43), tracks alone
     halve the prior on real photos, whose COLMAP tracks are short (beer -1.1 to -1.5 dB, session
-    44). Paired on one machine, union gains +0.56 / +0.59 dB on the benchmark (seeds 42 / 7), ties
+    44). Paired on one machine, union gains +0.56 / +0.58 dB on the benchmark (seeds 42 / 7), ties
     on the holdout set and beer and gains 0.2 dB on statue (sessions 47-49).
     """
     paper = _paper_pipeline()

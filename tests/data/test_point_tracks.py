@@ -137,6 +137,22 @@ def test_the_union_prior_adds_untracked_points_where_no_tracked_one_lands():
     assert v[2, 4] and d[2, 4] == pytest.approx(5.0)
 
 
+def test_union_without_tracks_and_for_a_view_tracking_nothing_is_the_old_reprojection():
+    """``tri-dehaze`` uses ``union``: a dataset without tracks, or a view none of whose points
+    are tracked, must get exactly the prior it got before (every point, the occlusion guess)."""
+    cam = _camera_at_origin()
+    near = torch.tensor([[0.0, 0.1, 1.0], [0.02, 0.1, 1.0]])  # pixel (4, 4), z 1
+    hidden = torch.tensor([[0.0, 0.1, 5.0], [-0.3, -0.2, 1.0]])  # behind near; pixel (1, 1)
+    pts = torch.cat([near, hidden])
+    d0, v0 = sfm_view_depth(pts, None, 0, cam, 7, 9)
+    assert v0.any()
+    d1, v1 = sfm_view_depth(pts, None, 0, cam, 7, 9, union=True)
+    elsewhere = PointTracks(np.array([0, 1, 2, 3]), np.array([1, 1, 1, 1]))  # all in view 1
+    d2, v2 = sfm_view_depth(pts, elsewhere, 0, cam, 7, 9, union=True)
+    for d, v in ((d1, v1), (d2, v2)):
+        assert torch.equal(v, v0) and torch.equal(d[v], d0[v0])
+
+
 def test_a_parser_pair_outside_its_own_points_or_frames_raises():
     """A plugin parser's bug must surface, not silently thin the depth prior."""
     kept = np.array([True, False, True])
