@@ -154,7 +154,7 @@ def test_overrides_reach_nested_configs():
 def test_paper_preset_is_the_papers_schedule():
     """method.md: 15k steps, the medium frozen (Stage II) at 3000, the dark channel as a two-sided
     target on a black background; tri-dehaze departs from it in exactly the measured settings
-    (sessions 8-12, 19, 23, 30, 32, 37 and 39 of docs/results/medium_recovery.md; session 40's
+    (sessions 8-12, 19, 23, 30, 32, 37, 39 and 49 of docs/results/medium_recovery.md; session 40's
     seen-light gate is off again since session 41)."""
     paper, default = parse_args(["tri-dehaze-paper"]), parse_args(["tri-dehaze"])
     assert paper.max_steps == 15_000 and default.max_steps == 3000
@@ -171,6 +171,7 @@ def test_paper_preset_is_the_papers_schedule():
         "lambda_dcp_isotropic": 1.0,
         "light_decision_fraction": 0.5,
         "light_colour_fit": True,
+        "point_tracks": "union",
     }
     assert replace(paper.pipeline, **measured) == default.pipeline
     assert (
