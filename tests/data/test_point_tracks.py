@@ -142,8 +142,9 @@ def test_union_without_tracks_and_for_a_view_tracking_nothing_is_the_old_reproje
     are tracked, must get exactly the prior it got before (every point, the occlusion guess)."""
     cam = _camera_at_origin()
     near = torch.tensor([[0.0, 0.1, 1.0], [0.02, 0.1, 1.0]])  # pixel (4, 4), z 1
-    hidden = torch.tensor([[0.0, 0.1, 5.0], [-0.3, -0.2, 1.0]])  # behind near; pixel (1, 1)
-    pts = torch.cat([near, hidden])
+    hidden = torch.tensor([[0.0, 0.1, 5.0]])  # pixel (2, 4), z 5: the guess drops it beside near
+    lone = torch.tensor([[-0.3, -0.2, 1.0]])  # pixel (1, 1), z 1
+    pts = torch.cat([near, hidden, lone])
     d0, v0 = sfm_view_depth(pts, None, 0, cam, 7, 9)
     assert v0.any()
     d1, v1 = sfm_view_depth(pts, None, 0, cam, 7, 9, union=True)
