@@ -21,6 +21,7 @@ from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import depth_spread, edge_aware_smoothness, log_depth_l1, pearson_depth_loss
 from components.losses.reconstruction import ReconstructionLossConfig
+from components.losses.shape import elongation_penalty
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
     CompositeConfig,
@@ -124,6 +125,12 @@ class GaussianPipelineConfig(PipelineConfig):
     march, the less haze, and the scene takes up the rest); this draws them onto the surface,
     like Mip-NeRF 360's distortion loss. It costs a second rasterization of three channels (kept
     out of densification's statistics); 0 = off."""
+    lambda_elongation: Annotated[float, NonNegative] = 0.0
+    """Weight of the needle penalty: how far each Gaussian's largest scale exceeds
+    ``max_elongation`` times its middle one (in log space, averaged over the Gaussians). A needle
+    seen end-on by the training views shows as a streak in a novel view; 0 = off."""
+    max_elongation: Annotated[float, Range(1.0, None)] = 10.0
+    """Largest-to-middle scale ratio the needle penalty allows freely (discs are never penalised)."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -543,7 +550,7 @@ class GaussianPipeline(Pipeline):
         self, cam: Cameras, depth: Tensor, target: Tensor, prior: ViewPrior | None, metrics: dict
     ) -> Tensor:
         """The Gaussians' own loss terms (depth correlation and smoothness, metric depth, depth
-        spread); their detached values go into ``metrics``."""
+        spread, needle penalty); their detached values go into ``metrics``."""
         cfg = self.config
         loss = depth.new_zeros(())
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
@@ -567,6 +574,10 @@ class GaussianPipeline(Pipeline):
             spread = self._depth_spread(cam)
             loss = loss + cfg.lambda_depth_spread * spread
             metrics["depth_spread"] = spread.detach()
+        if cfg.lambda_elongation > 0:
+            needle = elongation_penalty(self.model.log_scales, cfg.max_elongation)
+            loss = loss + cfg.lambda_elongation * needle
+            metrics["elongation"] = needle.detach()
         return loss
 
     def _medium_priors(
