@@ -78,11 +78,6 @@ class Pipeline(nn.Module, ABC):
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Trainable parameters by name with their base learning rates."""
 
-    def lr_scales(self, step: int) -> dict[str, float]:
-        """Multipliers on named groups' base learning rates at ``step`` (groups not named: 1);
-        on top of the engine's own schedule of the means."""
-        return {}
-
     def after_backward(self, step: int) -> None:  # noqa: B027 - optional hook
         """Hook after ``loss.backward()`` (e.g. collect densification statistics)."""
 

@@ -22,7 +22,7 @@ class OptimizerConfig:
 
 
 class Optimizers:
-    """Named Adam optimizers with an exponential schedule on the means and a pipeline's own scales."""
+    """Named Adam optimizers with an exponential schedule on the means."""
 
     def __init__(
         self, groups: dict[str, tuple[nn.Parameter, float]], config: OptimizerConfig, max_steps: int
@@ -43,16 +43,12 @@ class Optimizers:
         for opt in self.optimizers.values():
             opt.step()
 
-    def schedule(self, step: int, scales: dict[str, float] | None = None) -> None:
-        """Set every group's learning rate for ``step``: the means decay; the groups in ``scales``
-        (a pipeline's own schedule, :meth:`Pipeline.lr_scales`) run at that multiple of their base
-        rate, the rest at their base."""
-        scales = scales or {}
-        decay = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
-        for name, opt in self.optimizers.items():
-            factor = scales.get(name, 1.0) * (decay if name == "means" else 1.0)
-            for g in opt.param_groups:
-                g["lr"] = self.base_lr[name] * factor
+    def schedule(self, step: int) -> None:
+        """Set learning rates for ``step`` (only ``means`` decays)."""
+        if "means" in self.optimizers:
+            ratio = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
+            for g in self.optimizers["means"].param_groups:
+                g["lr"] = self.base_lr["means"] * ratio
 
     def state_dict(self) -> dict:
         return {name: opt.state_dict() for name, opt in self.optimizers.items()}

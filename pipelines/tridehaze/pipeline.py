@@ -192,10 +192,6 @@ class GaussianPipelineConfig(PipelineConfig):
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
     """Stage I length as a fraction of ``--max-steps`` when ``freeze_step`` is None (paper: 3k/15k)."""
-    medium_lr_final_ratio: Annotated[float, Range(0.0, 1.0, lo_open=True)] = 1.0
-    """The medium's learning rates decay exponentially from the hold's end to this fraction of
-    their base at the freeze (1: constant). Each step fits one view, so at a constant rate the
-    frozen medium is the last few views' answer, not the run's."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
@@ -283,6 +279,7 @@ retire_options(
     GaussianPipelineConfig,
     lambda_coverage=0.0,  # be6cacd
     lambda_opacity_entropy=0.0,  # 11e7734
+    medium_lr_final_ratio=1.0,  # ce60462
     medium_residual_blur=0.0,  # 759f02e
     medium_warmup_fraction=0.0,  # c1b3741
     strong_bound_floor=0.0,  # 2745c37
@@ -478,14 +475,6 @@ class GaussianPipeline(Pipeline):
     def stage_at(self, step: int) -> int:
         """1: scene and medium fitted jointly; 2: medium frozen, compensation per the policy."""
         return 1 if step < self.freeze_step else 2
-
-    def lr_scales(self, step: int) -> dict[str, float]:
-        ratio = self.config.medium_lr_final_ratio
-        if ratio >= 1.0 or not self._medium_trainable(step):
-            return {}
-        span = max(self.freeze_step - self.hold_steps, 1)
-        factor = ratio ** ((step - self.hold_steps) / span)
-        return {name: factor for name in self.medium.param_groups()}
 
     def _medium_trainable(self, step: int) -> bool:
         return self.stage_at(step) == 1 and step >= self.hold_steps

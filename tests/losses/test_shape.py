@@ -1,4 +1,5 @@
-"""The needle penalty: zero for spheres and discs, grows with a needle's excess, thickens it."""
+"""The needle penalty (`--pipeline.lambda-elongation`): zero for spheres and discs, grows with a
+needle's excess, shortens it; in the pipeline only when weighted."""
 
 from __future__ import annotations
 
@@ -38,3 +39,37 @@ def test_gradient_shortens_the_long_axis_and_widens_the_middle_one():
     elongation_penalty(log_scales, 10.0).backward()
     g = log_scales.grad[0]
     assert g[0] > 0 and g[1] < 0 and g[2] == 0  # descent: largest down, middle up, thinnest untouched
+
+
+def test_pipeline_adds_the_term_only_when_weighted(tmp_path):
+    """``--pipeline.lambda-elongation``: no term when off; on, the penalty of the model's scales
+    (one needle among spheres) in the step's metrics, and its gradient shortens the needle."""
+    from rich.console import Console
+
+    from pipelines.engine.trainer import Trainer
+    from tests.tiny_scenes import tiny_hazy_scene
+    from tridehaze_plugin.cli.train import parse_args
+
+    scene = tiny_hazy_scene(tmp_path / "s", layout="street", haze="homogeneous", seed=4)
+
+    def pipeline(out: str, *extra: str):
+        cfg = parse_args([
+            "tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / out), "--max-steps", "40",
+            "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
+            "--threads", "1", *extra,
+        ])  # fmt: skip
+        trainer = Trainer(cfg, console=Console(quiet=True))
+        trainer.setup()
+        return trainer.pipeline
+
+    assert "elongation" not in pipeline("off").train_loss(0).metrics
+    on = pipeline("on", "--pipeline.lambda-elongation", "1")
+    log_scales = on.model.params["log_scales"]
+    with torch.no_grad():
+        log_scales[:] = math.log(0.01)  # spheres: no penalty
+        log_scales[0] = torch.tensor([0.0, math.log(0.01), math.log(0.01)])  # one needle, ratio 100
+    res = on.train_loss(0)
+    n = log_scales.shape[0]
+    assert float(res.metrics["elongation"]) == pytest.approx(math.log(10.0) / n, rel=1e-4)
+    res.loss.backward()
+    assert float(log_scales.grad[0, 0]) > 0.0  # descent shortens the needle's long axis
