@@ -131,6 +131,14 @@ class GaussianPipelineConfig(PipelineConfig):
     seen end-on by the training views shows as a streak in a novel view; 0 = off."""
     max_elongation: Annotated[float, Range(1.0, None)] = 10.0
     """Largest-to-middle scale ratio the needle penalty allows freely (discs are never penalised)."""
+    homogeneous_tv_weight: Annotated[float, NonNegative] = 0.0
+    """TV weight on the medium's grid features (``medium.tv_weight``) for captures whose haze the
+    probe finds homogeneous (one extinction explains every pair of training views; logged in
+    logs/decisions.jsonl); other captures keep ``medium.tv_weight``. Left free, the extinction
+    field takes up the surfaces' texture in front of them (a thin slab of haze is a change of
+    colour to the photometric loss), which a smoothness prior suppresses where the haze is
+    smooth, and where it is not it smooths real structure away (docs/results/medium_recovery.md,
+    session 50). 0: no gate (and no probe)."""
     depth_correlation: bool = True
     """Keep the Pearson correlation term of the depth loss (``--pipeline.no-depth-correlation`` drops
     it but keeps the smoothness term: the paper's "without depth correlation" ablation)."""
@@ -257,14 +265,38 @@ class GaussianPipelineConfig(PipelineConfig):
             )
 
     def resolve(self, datamanager: DataManager, seed: int) -> tuple[GaussianPipelineConfig, list[Decision]]:
-        """``--pipeline.medium.backend auto``: the haze probe of the training views picks the medium."""
-        if self.medium.backend != "auto":
+        """The haze probe of the training views, where a choice depends on it: the medium backend
+        (``--pipeline.medium.backend auto``) and the extinction's smoothness
+        (``homogeneous_tv_weight``)."""
+        auto = self.medium.backend == "auto"
+        gated = self.homogeneous_tv_weight > 0 and self.medium.backend != "none"
+        if not (auto or gated):
             return self, []
         train = datamanager.train_indices
         dcp = dcp_per_view(datamanager, train, keep=True, airlight=self.airlight)  # for setup()
         probe = probe_haze(datamanager, train, datamanager.scene.points, seed, dcp)
-        resolved = replace(self, medium=replace(self.medium, backend=probe.backend))
-        return resolved, [Decision(probe.message(), {"haze_probe": probe.to_dict()})]
+        medium, decisions = self.medium, []
+        if auto:
+            medium = replace(medium, backend=probe.backend)
+            decisions.append(Decision(probe.message(), {"haze_probe": probe.to_dict()}))
+        if gated:
+            smooth = probe.haze == "homogeneous"
+            weight = self.homogeneous_tv_weight if smooth else medium.tv_weight
+            medium = replace(medium, tv_weight=weight)
+            why = "one extinction explains every pair of views" if smooth else f"the probe says {probe.haze}"
+            decisions.append(
+                Decision(
+                    f"medium TV weight {weight:g}: {why}",
+                    {
+                        "homogeneous_tv": {
+                            "haze": probe.haze,
+                            "tv_weight": weight,
+                            **({} if auto else {"haze_probe": probe.to_dict()}),
+                        }
+                    },
+                )
+            )
+        return replace(self, medium=medium), decisions
 
     def setup(
         self, datamanager: DataManager, seed: int = 0, max_steps: int = 30_000, training: bool = True
