@@ -247,3 +247,28 @@ def test_the_probes_dark_channels_are_reused_by_setup(scenes, monkeypatch, light
         given = torch.tensor([float(v) for v in light[1:]])
         assert pipe.priors and all(torch.allclose(p.airlight.cpu(), given) for p in pipe.priors.values())
     assert dm not in priors._HANDED_OVER  # taken by setup, not held through training
+
+
+@pytest.mark.parametrize(("layout", "haze", "weight"), [("room", "uniform", 0.1), ("room", "patchy", 0.0)])
+def test_homogeneous_haze_gets_the_smoothness_prior(scenes, layout, haze, weight):
+    """``--pipeline.homogeneous-tv-weight``: resolve() probes the views and sets the medium's TV
+    weight only where one extinction explains every pair of views; the decision is logged, the
+    caller's config is left alone and the resolved config does not probe again."""
+    from pipelines.engine.datamanager import DataManager
+
+    cfg = parse_args(
+        ["tri-dehaze", "--data", str(scenes[layout, haze]), "--pipeline.homogeneous-tv-weight", "0.1"]
+    )
+    assert cfg.pipeline.homogeneous_tv_weight == 0.1 and cfg.pipeline.medium.tv_weight == 0.0
+    dm = DataManager(load_scene(cfg.dataset), torch.device("cpu"), seed=0)
+    resolved, decisions = cfg.pipeline.resolve(dm, seed=0)
+    assert resolved.medium.tv_weight == weight and resolved.homogeneous_tv_weight == 0.0
+    assert cfg.pipeline.homogeneous_tv_weight == 0.1 and cfg.pipeline.medium.tv_weight == 0.0
+    [d] = decisions
+    gate = d.data["homogeneous_tv"]  # the default tri-dehaze has no gate, so no probe and no decision
+    assert gate["haze"] == CASES[layout, haze] and gate["tv_weight"] == weight
+    assert gate["haze_probe"]["haze"] == CASES[layout, haze] and f"weight {weight:g}" in d.message
+    again, none = resolved.resolve(dm, seed=0)
+    assert again is resolved and none == []
+    off = parse_args(["tri-dehaze", "--data", str(scenes[layout, haze])]).pipeline
+    assert off.resolve(dm, seed=0) == (off, [])
