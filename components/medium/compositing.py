@@ -66,12 +66,6 @@ class CompositeConfig:
     medium's bounding box, so background rays cross the whole modelled medium."""
     depth_gradient: bool = False
     """Let the composite's gradient flow into the rendered depth (off: depth is detached)."""
-    depth_gradient_blur: Annotated[float, Range(0.0)] = 0.0
-    """With ``depth_gradient``: the gradient reaches the depth through a Gaussian low-pass of this
-    sigma (pixels of the training render), the forward depth unchanged. Per pixel, moving a
-    surface changes its haze, so the full gradient lets the depth take up colour residuals and
-    the surface's texture shows in T; the low-pass keeps the pull on whole surfaces. 0: the
-    gradient as it is."""
     coverage_gradient: bool = False
     """Let the composite's gradient flow into the coverage (alpha) that blends each pixel's end
     depth to the far bound. Detached, a less covered pixel marches further into the haze without
@@ -207,20 +201,6 @@ class MediumRender:
         return w * clean + (1.0 - w) * target
 
 
-def _gaussian_blur(image: Tensor, sigma: float) -> Tensor:
-    """[H, W, C] blurred by a separable Gaussian of ``sigma`` pixels (edges replicated)."""
-    radius = max(1, math.ceil(3.0 * sigma))
-    x = torch.arange(-radius, radius + 1, dtype=image.dtype, device=image.device)
-    kernel = torch.exp(-0.5 * (x / sigma) ** 2)
-    kernel = kernel / kernel.sum()  # [2r + 1]
-    c = image.shape[-1]
-    out = image.permute(2, 0, 1)[None]  # [1, C, H, W]
-    out = F.pad(out, (radius, radius, radius, radius), mode="replicate")
-    out = F.conv2d(out, kernel.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
-    out = F.conv2d(out, kernel.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
-    return out[0].permute(1, 2, 0)
-
-
 def _enough(band: Tensor) -> bool:
     """Whether a fill's band [H, W] has the pixels to average (else the haze light stays)."""
     return int(band.sum()) >= max(MIN_FILL_PIXELS, MIN_FILL_SHARE * band.numel())
@@ -324,20 +304,9 @@ class MediumCompositor:
             return float(self.config.far)
         return float(2.0 * field.bounds_half.norm())
 
-    def graded_depth(self, depth: Tensor) -> Tensor:
-        """``depth`` [H, W, 1] as the march sees it: detached, or with its gradient as
-        ``depth_gradient`` and ``depth_gradient_blur`` say (the same values either way)."""
-        if not self.config.depth_gradient:
-            return depth.detach()
-        sigma = float(self.config.depth_gradient_blur)
-        if sigma <= 0.0:
-            return depth
-        smooth = _gaussian_blur(depth, sigma)  # [H, W, 1]
-        return depth.detach() + (smooth - smooth.detach())
-
     def end_depth(self, depth: Tensor, alpha: Tensor, far: float) -> Tensor:
         """Per-pixel z where the ray stops: the surface, blended to ``far`` by transparency."""
-        d = self.graded_depth(depth)
+        d = depth if self.config.depth_gradient else depth.detach()
         a = (alpha if self.config.coverage_gradient else alpha.detach()).clamp(0.0, 1.0)
         return (a * d.clamp(min=0.0, max=far) + (1.0 - a) * far).clamp_min(1e-6)  # [H, W, 1]
 
@@ -442,7 +411,7 @@ class MediumCompositor:
 
     def surface_depth(self, depth: Tensor, far: float) -> Tensor:
         """[H, W, 1] where the covered share of each pixel ends (``background infinite``)."""
-        d = self.graded_depth(depth)
+        d = depth if self.config.depth_gradient else depth.detach()
         return d.clamp(min=1e-6, max=far)
 
     def with_sky(self, surface: MediumRender, alpha: Tensor, sky: Tensor) -> MediumRender:
