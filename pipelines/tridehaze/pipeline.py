@@ -138,8 +138,8 @@ class GaussianPipelineConfig(PipelineConfig):
     field takes up the surfaces' texture in front of them (a thin slab of haze is a change of
     colour to the photometric loss), which a smoothness prior suppresses. At 0.1, paired on the
     benchmark: +0.25 dB at seeds 42 and 7 (room-uniform +0.8 / +0.7); but on the holdout set's
-    homogeneous room -3.1 dB at seed 42 (T MAE 0.043 -> 0.067), so it is not ``tri-dehaze``'s
-    default (docs/results/medium_recovery.md, session 50). Resolved before setup, like
+    homogeneous room -3.1 / -0.6 dB (seeds 42 / 7; T MAE 0.043 -> 0.067 at 42: a denser medium
+    under a dimmer light), so it is not ``tri-dehaze``'s default (docs/results/medium_recovery.md, session 50). Resolved before setup, like
     ``medium.backend auto``: the run's config.yml holds the chosen ``medium.tv_weight`` and 0
     here. 0: no gate (and no probe)."""
     depth_correlation: bool = True
