@@ -20,6 +20,7 @@ from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
 from components.losses.depth import depth_spread, edge_aware_smoothness, log_depth_l1, pearson_depth_loss
+from components.losses.medium_texture import path_extinction_roughness
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.losses.shape import elongation_penalty
 from components.medium.base import FieldBounds, MediumConfig, MediumField
@@ -52,7 +53,7 @@ from pipelines.tridehaze.priors import (
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.warmup import warmup_depths
-from tridehaze_plugin.config import NonNegative, Range, RegistryChoice, retire_options
+from tridehaze_plugin.config import NonNegative, Positive, Range, RegistryChoice, retire_options
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
@@ -194,6 +195,15 @@ class GaussianPipelineConfig(PipelineConfig):
     strong bound acts from here to the freeze and only ever thins the medium, so this also sets
     its dose (``tri-dehaze``: 0.5 with the freeze at 0.75; docs/results/medium_recovery.md,
     session 39)."""
+    lambda_path_extinction: Annotated[float, NonNegative] = 0.0
+    """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
+    difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
+    rays that end at about the same depth. Left free, the extinction field takes up the surfaces'
+    texture in front of them; unlike ``medium.tv_weight`` this holds neither a homogeneous
+    medium's amount nor its large patches (components/losses/medium_texture.py)."""
+    path_extinction_depth_step: Annotated[float, Positive] = 0.05
+    """Adjacent pixels whose end depths differ by more than this (in log depth) are a depth edge,
+    across which the medium-texture prior lets the mean extinction change."""
     lambda_light: Annotated[float, NonNegative] = 0.0
     """Weight of the light anchor (Stage I only; 0 = off): the squared error between the mean light
     the view's rays scatter and the view's dark-channel airlight. The light is otherwise free to
@@ -643,7 +653,12 @@ class GaussianPipeline(Pipeline):
             anchor = (med.scattered_light - prior.airlight).square().mean()
             loss = loss + cfg.lambda_light * anchor
             metrics["light_anchor"] = anchor.detach()
-        reg = self.medium.regularizer() if self._medium_trainable(step) else None
+        trainable = self._medium_trainable(step)
+        if trainable and cfg.lambda_path_extinction > 0:
+            rough = path_extinction_roughness(T, med.end_depth[..., 0], cfg.path_extinction_depth_step)
+            loss = loss + cfg.lambda_path_extinction * rough
+            metrics["path_extinction"] = rough.detach()
+        reg = self.medium.regularizer() if trainable else None
         if reg is not None:
             loss = loss + reg
         metrics["mean_T"] = T.detach().mean()

@@ -1,0 +1,38 @@
+"""A prior against surface texture in the medium: neighbouring rays that end on the same surface
+should cross about the same mean extinction.
+
+The photometric loss cannot tell a darker patch of wall from a thicker patch of haze in front of it
+(I = J T + S fits either), and the trained extinction field ends up carrying the walls' and
+floors' texture (docs/results/medium_recovery.md, session 50). A smoothness prior on the field
+itself (``medium.tv-weight``) also flattens real patchy haze. This one acts in the image: the mean
+extinction along each pixel's ray, tau / z, compared between neighbouring pixels whose end depths
+are close (a depth edge may change it: the rays then cross different haze). A homogeneous medium
+gives a constant map whatever the geometry, so the prior does not thin or thicken the haze; large
+patches change it slowly from pixel to pixel; texture changes it at the texture's scale.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+
+def path_extinction_roughness(transmittance: Tensor, end_depth: Tensor, max_depth_step: float) -> Tensor:
+    """Mean squared difference, relative to the view's mean, of the mean extinction tau / z between
+    horizontally and vertically adjacent pixels whose end depths differ by less than
+    ``max_depth_step`` in log depth.
+
+    transmittance, end_depth: [H, W] (T in (0, 1], z > 0). Relative to the view's (detached) mean
+    the prior is scale-free: thin and dense haze are held alike. 0 where no pair qualifies.
+    """
+    z = end_depth.clamp_min(1e-6)  # [H, W]
+    mean_ext = -transmittance.clamp_min(1e-12).log() / z  # [H, W] tau / z
+    scale = mean_ext.detach().mean().clamp_min(1e-6)
+    rel = mean_ext / scale  # [H, W]
+    log_z = z.detach().log()
+    total = rel.new_zeros(())
+    pairs = rel.new_zeros(())
+    for dim in (0, 1):
+        same = (log_z.diff(dim=dim).abs() < max_depth_step).to(rel.dtype)  # [H-1, W] or [H, W-1]
+        total = total + (rel.diff(dim=dim).square() * same).sum()
+        pairs = pairs + same.sum()
+    return total / pairs.clamp_min(1.0)
