@@ -25,6 +25,7 @@ from components.losses.reconstruction import ReconstructionLossConfig
 from components.losses.shape import elongation_penalty
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
+    OPEN_SKY_COVERAGE,
     CompositeConfig,
     MediumCompositor,
     MediumRender,
@@ -560,7 +561,9 @@ class GaussianPipeline(Pipeline):
         prior = self.priors.get(idx)
         loss = loss + self._scene_priors(cam, depth, target, prior, metrics)
         if med is not None:
-            loss = loss + self._medium_priors(step, stage, target, med, prior, metrics)
+            loss = loss + self._medium_priors(
+                step, stage, target, med, out.alpha[0, ..., 0].detach(), prior, metrics
+            )
         self._last = out
         self._dens_weight = self._densify_weight(out, med, stage)
         metrics["psnr"] = psnr(hazy.detach(), target)
@@ -628,10 +631,18 @@ class GaussianPipeline(Pipeline):
         return loss
 
     def _medium_priors(
-        self, step: int, stage: int, target: Tensor, med: MediumRender, prior: ViewPrior | None, metrics: dict
+        self,
+        step: int,
+        stage: int,
+        target: Tensor,
+        med: MediumRender,
+        alpha: Tensor,
+        prior: ViewPrior | None,
+        metrics: dict,
     ) -> Tensor:
-        """The medium's own loss terms (dark-channel transmittance, light anchor, field regulariser);
-        their detached values go into ``metrics``."""
+        """The medium's own loss terms (dark-channel transmittance, light anchor, medium texture,
+        field regulariser) given the view's coverage ``alpha`` [H, W]; their detached values go into
+        ``metrics``."""
         cfg = self.config
         T = med.pixel_transmittance()[..., 0]  # [H, W]
         loss = T.new_zeros(())
@@ -655,7 +666,10 @@ class GaussianPipeline(Pipeline):
             metrics["light_anchor"] = anchor.detach()
         trainable = self._medium_trainable(step)
         if trainable and cfg.lambda_path_extinction > 0:
-            rough = path_extinction_roughness(T, med.end_depth[..., 0], cfg.path_extinction_depth_step)
+            surface = alpha >= OPEN_SKY_COVERAGE  # [H, W] rays that end on the scene
+            rough = path_extinction_roughness(
+                T, med.end_depth[..., 0], surface, cfg.path_extinction_depth_step
+            )
             loss = loss + cfg.lambda_path_extinction * rough
             metrics["path_extinction"] = rough.detach()
         reg = self.medium.regularizer() if trainable else None
