@@ -26,13 +26,15 @@ def path_extinction_roughness(
     transmittance, end_depth: [H, W] (T in (0, 1], z > 0); surface: [H, W] bool, the pixels whose
     ray ends on the scene. Rays that leave the scene (the sky) cross other haze, of which the
     photos show only the sum: holding them to the surfaces' thinned the sky's haze and lost the
-    sunlit scenes 3-5 dB. Relative to the view's (detached) mean over the surface pixels the prior
-    is scale-free: thin and dense haze are held alike. 0 where no pair qualifies.
+    sunlit scenes 3-5 dB. Relative to the view's mean over the surface pixels the prior is
+    scale-free in value and gradient: it neither thins nor thickens the haze. 0 where no pair qualifies.
     """
     z = end_depth.clamp_min(1e-6)  # [H, W]
     mean_ext = -transmittance.clamp_min(1e-12).log() / z  # [H, W] tau / z
     on = surface.to(mean_ext.dtype)
-    scale = ((mean_ext.detach() * on).sum() / on.sum().clamp_min(1.0)).clamp_min(1e-6)
+    # not detached: with it, a medium scaled by c costs c^2 as much, and the prior thinned every
+    # scene's haze (mean T +0.05 to +0.13, street-sunlit's T MAE 0.08 -> 0.15)
+    scale = ((mean_ext * on).sum() / on.sum().clamp_min(1.0)).clamp_min(1e-6)
     rel = mean_ext / scale  # [H, W]
     log_z = z.detach().log()
     total = rel.new_zeros(())

@@ -50,6 +50,15 @@ def test_a_depth_edge_may_change_the_medium():
     assert _rough(torch.exp(-beta * z), z).item() > 0.01
 
 
+def test_a_global_scale_of_the_medium_gets_no_gradient():
+    z = _ramp()
+    checker = ((torch.arange(12)[:, None] + torch.arange(16)[None]) % 2).float()
+    scale = torch.tensor(1.0, requires_grad=True)
+    rough = _rough(torch.exp(-scale * 0.2 * (1.0 + 0.2 * checker) * z), z)
+    rough.backward()
+    assert rough.item() > 0.01 and abs(scale.grad.item()) < 1e-6 * rough.item()
+
+
 def test_rays_that_leave_the_scene_are_not_held():
     z = torch.full((12, 16), 4.0)
     beta = torch.full((12, 16), 0.2)
