@@ -200,8 +200,11 @@ class GaussianPipelineConfig(PipelineConfig):
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
     rays that end at about the same depth. Left free, the extinction field takes up the surfaces'
-    texture in front of them; unlike ``medium.tv_weight`` this holds neither a homogeneous
-    medium's amount nor its large patches (components/losses/medium_texture.py)."""
+    texture in front of them; unlike ``medium.tv_weight`` this does not hold a homogeneous
+    medium's amount (components/losses/medium_texture.py). At 1, paired on the benchmark: -0.19 /
+    -0.24 dB (seeds 42 / 7): the uniform media gain (room-uniform +2.4 / +1.5, street-homogeneous
+    +0.8 / +0.5), the patchy ones and the sunlit field lose (room-patchy -0.8 / -0.7, field-sunlit
+    -3.1 / -2.2), so it stays off (docs/results/medium_recovery.md, session 51)."""
     path_extinction_depth_step: Annotated[float, Positive] = 0.05
     """Adjacent pixels whose end depths differ by more than this (in log depth) are a depth edge,
     across which the medium-texture prior lets the mean extinction change."""
