@@ -14,3 +14,21 @@ def tiny_hazy_scene(root: Path, **overrides) -> Path:
     """Generate a scene into ``root`` with :data:`TINY` settings plus ``overrides``; returns ``root``."""
     generate_scene(SceneConfig(output_dir=root, **{**TINY, **overrides}))
     return root
+
+
+def tiny_pipeline(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40):
+    """The set-up ``tri-dehaze`` pipeline of a short CPU run on ``scene`` (torch rasterizer, one
+    thread, no evaluation), with ``extra`` command-line options; nothing trained yet."""
+    from rich.console import Console
+
+    from pipelines.engine.trainer import Trainer
+    from tridehaze_plugin.cli.train import parse_args
+
+    cfg = parse_args([
+        "tri-dehaze", "--data", str(scene), "--output-dir", str(output_dir), "--max-steps", str(max_steps),
+        "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
+        "--threads", "1", *extra,
+    ])  # fmt: skip
+    trainer = Trainer(cfg, console=Console(quiet=True))
+    trainer.setup()
+    return trainer.pipeline

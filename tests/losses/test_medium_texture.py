@@ -80,23 +80,12 @@ def test_gradient_flattens_the_texture():
 
 
 def test_pipeline_adds_the_term_only_when_weighted_and_learning(tmp_path):
-    from rich.console import Console
-
-    from pipelines.engine.trainer import Trainer
-    from tests.tiny_scenes import tiny_hazy_scene
-    from tridehaze_plugin.cli.train import parse_args
+    from tests.tiny_scenes import tiny_hazy_scene, tiny_pipeline
 
     scene = tiny_hazy_scene(tmp_path / "s", layout="street", haze="patchy", seed=4)
 
     def pipeline(out: str, *extra: str):
-        cfg = parse_args([
-            "tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / out), "--max-steps", "40",
-            "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
-            "--threads", "1", *extra,
-        ])  # fmt: skip
-        trainer = Trainer(cfg, console=Console(quiet=True))
-        trainer.setup()
-        return trainer.pipeline
+        return tiny_pipeline(scene, tmp_path / out, *extra)
 
     off = pipeline("off")
     learning = off.hold_steps + 1

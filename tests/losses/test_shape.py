@@ -44,23 +44,12 @@ def test_gradient_shortens_the_long_axis_and_widens_the_middle_one():
 def test_pipeline_adds_the_term_only_when_weighted(tmp_path):
     """``--pipeline.lambda-elongation``: no term when off; on, the penalty of the model's scales
     (one needle among spheres) in the step's metrics, and its gradient shortens the needle."""
-    from rich.console import Console
-
-    from pipelines.engine.trainer import Trainer
-    from tests.tiny_scenes import tiny_hazy_scene
-    from tridehaze_plugin.cli.train import parse_args
+    from tests.tiny_scenes import tiny_hazy_scene, tiny_pipeline
 
     scene = tiny_hazy_scene(tmp_path / "s", layout="street", haze="homogeneous", seed=4)
 
     def pipeline(out: str, *extra: str):
-        cfg = parse_args([
-            "tri-dehaze", "--data", str(scene), "--output-dir", str(tmp_path / out), "--max-steps", "40",
-            "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
-            "--threads", "1", *extra,
-        ])  # fmt: skip
-        trainer = Trainer(cfg, console=Console(quiet=True))
-        trainer.setup()
-        return trainer.pipeline
+        return tiny_pipeline(scene, tmp_path / out, *extra)
 
     assert "elongation" not in pipeline("off").train_loss(0).metrics
     on = pipeline("on", "--pipeline.lambda-elongation", "1")
