@@ -76,7 +76,8 @@ def test_gradient_flattens_the_texture():
     beta = (0.2 + 0.05 * checker).requires_grad_(True)
     _rough(torch.exp(-beta * z), z).backward()
     g = beta.grad
-    assert (g[checker == 1] > 0).all() and (g[checker == 0] < 0).all()  # descent: bright cells down
+    # descent thins the denser cells and thickens the thinner ones
+    assert (g[checker == 1] > 0).all() and (g[checker == 0] < 0).all()
 
 
 def test_pipeline_adds_the_term_only_when_weighted_and_learning(tmp_path):
