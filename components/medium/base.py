@@ -192,13 +192,15 @@ class MediumField(nn.Module):
     ``gaussian-bound`` which renders through the rasterizer instead); ``has_medium`` False means
     there is no medium at all (plain 3DGS); ``renders_with_gaussians`` True means the medium lives
     on the scene's Gaussians (:meth:`attach`, :meth:`render_view`); ``recolours_light`` True means
-    its light takes a per-channel factor (:meth:`recolour_light`).
+    its light takes a per-channel factor (:meth:`recolour_light`); ``band_limits`` True means its
+    features live on a grid that :meth:`set_band_limit` can low-pass (coarse-to-fine).
     """
 
     is_field: bool = True
     has_medium: bool = True
     renders_with_gaussians: bool = False
     recolours_light: bool = False
+    band_limits: bool = False
 
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
         super().__init__()
@@ -238,6 +240,11 @@ class MediumField(nn.Module):
         fit at the freeze, which the light's own parametrisation cannot take in one step). Only
         where ``recolours_light``."""
         raise NotImplementedError(f"{type(self).__name__} cannot recolour its light")
+
+    def set_band_limit(self, sigma: float) -> None:
+        """Low-pass the field's grid by a Gaussian of std ``sigma`` cells from now on (0: none).
+        Only where ``band_limits``."""
+        raise NotImplementedError(f"{type(self).__name__} has no grid to band-limit")
 
     def bind_scene(self, root: Path, transform: SceneTransform) -> None:  # noqa: B027 - optional hook
         """Read what the field needs from the dataset itself (``reference``: the generator's medium);

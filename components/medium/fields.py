@@ -12,6 +12,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from components.medium.band_limit import blur_grid
 from components.medium.base import (
     FieldBounds,
     MediumConfig,
@@ -69,12 +70,36 @@ class HeadedField(MediumField):
         self.heads.recolour(gain)
 
 
+class GridField(HeadedField):
+    """A headed field whose features live on a grid (``features`` [B, C, *S]), read through an
+    optional Gaussian low-pass whose width the pipeline anneals (coarse-to-fine)."""
+
+    band_limits = True
+    features: nn.Parameter
+
+    def _register_band_limit(self) -> None:
+        # a buffer, so a checkpoint resumes at the blur it was saved with
+        self.register_buffer("band_sigma", torch.zeros(()))
+
+    def set_band_limit(self, sigma: float) -> None:
+        self.band_sigma.fill_(max(float(sigma), 0.0))
+
+    def grid(self) -> Tensor:
+        """The features as the lookup sees them: low-passed while a band limit is set."""
+        return blur_grid(self.features, float(self.band_sigma))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints from before the band limit: none
+        state_dict.setdefault(prefix + "band_sigma", torch.zeros(()))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
 def _tv(grid: Tensor, dims: tuple[int, ...]) -> Tensor:
     """Mean squared finite difference along ``dims`` (smooth L2 TV, as in K-Planes / Plenoxels)."""
     return torch.stack([(grid.diff(dim=d) ** 2).mean() for d in dims]).sum()
 
 
-class TriplaneField(HeadedField):
+class TriplaneField(GridField):
     """Three axis-aligned feature planes (xy, xz, yz), bilinear lookup, features concatenated."""
 
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
@@ -83,12 +108,13 @@ class TriplaneField(HeadedField):
         self.features = nn.Parameter(torch.randn(3, c, r, r) * GRID_INIT_STD)  # [3, C, R, R]
         self.feature_dim = 3 * c
         self._build_heads()
+        self._register_band_limit()
 
     def encode(self, x: Tensor) -> Tensor:
         n = self.bounds.normalize(x)  # [P, 3] in [-1, 1]
         # grid_sample reads (u, v) = (width, height): plane i is indexed by the coordinate pair below
         uv = torch.stack([n[:, [0, 1]], n[:, [0, 2]], n[:, [1, 2]]])  # [3, P, 2]
-        feat = F.grid_sample(self.features, uv.unsqueeze(1), mode="bilinear", align_corners=True)
+        feat = F.grid_sample(self.grid(), uv.unsqueeze(1), mode="bilinear", align_corners=True)
         return feat[:, :, 0].permute(2, 0, 1).reshape(-1, self.feature_dim)  # [3, C, 1, P] -> [P, 3C]
 
     def regularizer(self) -> Tensor | None:
@@ -96,7 +122,7 @@ class TriplaneField(HeadedField):
         return w * _tv(self.features, (2, 3)) if w > 0 else None
 
 
-class VoxelField(HeadedField):
+class VoxelField(GridField):
     """One dense 3D grid with the tri-plane's feature budget, trilinear lookup.
 
     Side ``G = round((3 R^2)^(1/3))`` at the same C channels (23^3 x 8 for R=64, C=8): the grid
@@ -110,10 +136,11 @@ class VoxelField(HeadedField):
         self.features = nn.Parameter(torch.randn(1, c, g, g, g) * GRID_INIT_STD)  # [1, C, G, G, G]
         self.feature_dim = c
         self._build_heads()
+        self._register_band_limit()
 
     def encode(self, x: Tensor) -> Tensor:
         n = self.bounds.normalize(x)  # [P, 3]; grid_sample's (x, y, z) index (W, H, D)
-        feat = F.grid_sample(self.features, n.view(1, 1, 1, -1, 3), mode="bilinear", align_corners=True)
+        feat = F.grid_sample(self.grid(), n.view(1, 1, 1, -1, 3), mode="bilinear", align_corners=True)
         return feat[0, :, 0, 0].t()  # [1, C, 1, 1, P] -> [P, C]
 
     def regularizer(self) -> Tensor | None:

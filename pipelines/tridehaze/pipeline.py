@@ -23,6 +23,7 @@ from components.losses.depth import depth_spread, edge_aware_smoothness, log_dep
 from components.losses.medium_texture import path_extinction_roughness
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.losses.shape import elongation_penalty
+from components.medium.band_limit import coarse_to_fine_sigma
 from components.medium.base import FieldBounds, MediumConfig, MediumField
 from components.medium.compositing import (
     OPEN_SKY_COVERAGE,
@@ -220,6 +221,14 @@ class GaussianPipelineConfig(PipelineConfig):
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
+    medium_coarse_to_fine: Annotated[float, NonNegative] = 0.0
+    """Coarse-to-fine medium: when it starts learning, the grid's features are low-passed by a
+    Gaussian of this std (in grid cells), falling linearly to none over ``medium-coarse-fraction``
+    of its learning (the hold's end to the freeze). Early in Stage I the Gaussians are coarse and
+    the medium, a fast learner, takes up the surfaces' texture as thin slabs of haze; smooth haze
+    first leaves the texture to the Gaussians. Grid backends only (triplane, voxel); 0 = off."""
+    medium_coarse_fraction: Annotated[float, Range(0.0, 1.0)] = 0.5
+    """Share of the medium's learning over which the coarse-to-fine blur falls to zero."""
     init_medium: bool = True
     """Start the medium from the dark channel: airlight from the brightest dark-channel pixels,
     extinction from -ln T_dcp at the seed points' distances (else the medium config's values)."""
@@ -415,6 +424,13 @@ class GaussianPipeline(Pipeline):
         train_c2w = scene.cameras.camtoworlds[list(datamanager.train_indices)].detach().double().cpu().numpy()
         self.scene_up = torch.from_numpy(scene_up(train_c2w)).float()  # [3] for the clean render's fill
         self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
+        if config.medium_coarse_to_fine > 0 and self.medium.has_medium and not self.medium.band_limits:
+            raise ConfigError(
+                f"--pipeline.medium-coarse-to-fine low-passes a grid; the {config.medium.backend!r} "
+                "medium has none",
+                fix="use --pipeline.medium.backend triplane or voxel, or leave "
+                "--pipeline.medium-coarse-to-fine at 0",
+            )
         self.medium.bind_scene(scene.root, scene.transform)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
@@ -526,6 +542,12 @@ class GaussianPipeline(Pipeline):
         """1: scene and medium fitted jointly; 2: medium frozen, compensation per the policy."""
         return 1 if step < self.freeze_step else 2
 
+    def _band_limit(self, step: int) -> float:
+        """The coarse-to-fine blur of the medium's grid at ``step`` (cells)."""
+        cfg = self.config
+        end = self.hold_steps + round(cfg.medium_coarse_fraction * (self.freeze_step - self.hold_steps))
+        return coarse_to_fine_sigma(step, self.hold_steps, end, cfg.medium_coarse_to_fine)
+
     def _medium_trainable(self, step: int) -> bool:
         return self.stage_at(step) == 1 and step >= self.hold_steps
 
@@ -543,6 +565,8 @@ class GaussianPipeline(Pipeline):
         if self.light_colour.due(step):
             self._fit_light_colour()
         self.medium.set_trainable(self._medium_trainable(step), self.model)
+        if cfg.medium_coarse_to_fine > 0 and self.medium.band_limits:
+            self.medium.set_band_limit(self._band_limit(step))
         idx = dm.train_index(step)
         target = self.training_target(idx)  # [H, W, 3]
         bg = self.background
