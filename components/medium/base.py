@@ -142,6 +142,10 @@ class MediumConfig(ComponentConfig):
     pipeline initialises the medium from data."""
     init_light: tuple[float, float, float] = (0.7, 0.7, 0.7)
     """Initial medium light (RGB); replaced by the dark-channel airlight estimate when available."""
+    init_feature_std: Annotated[float, NonNegative] = 0.1
+    """Std of the grid backends' (triplane, voxel) random start features. The heads' last layers
+    start near zero, so the start is uniform; but as they grow, whatever of this noise the
+    gradient has not overwritten shows as spatial variation of the extinction."""
     tv_weight: Annotated[float, NonNegative] = 0.0
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
     reference_scale: Annotated[tuple[float, float], NonNegative] = (1.0, 1.0)

@@ -25,7 +25,7 @@ from components.medium.base import (
 from tridehaze_plugin.registry import register
 
 GRID_INIT_STD = 0.1
-"""Std of the random grid / feature init: enough to break symmetry, small next to the heads' scale."""
+"""Std of the constant field's random start feature (the grids take ``init_feature_std``)."""
 
 
 class HeadedField(MediumField):
@@ -105,7 +105,7 @@ class TriplaneField(GridField):
     def __init__(self, config: MediumConfig, bounds: FieldBounds) -> None:
         super().__init__(config, bounds)
         r, c = int(config.resolution), int(config.channels)
-        self.features = nn.Parameter(torch.randn(3, c, r, r) * GRID_INIT_STD)  # [3, C, R, R]
+        self.features = nn.Parameter(torch.randn(3, c, r, r) * config.init_feature_std)  # [3, C, R, R]
         self.feature_dim = 3 * c
         self._build_heads()
         self._register_band_limit()
@@ -133,7 +133,7 @@ class VoxelField(GridField):
         super().__init__(config, bounds)
         r, c = int(config.resolution), int(config.channels)
         g = max(2, round((3 * r * r) ** (1.0 / 3.0)))
-        self.features = nn.Parameter(torch.randn(1, c, g, g, g) * GRID_INIT_STD)  # [1, C, G, G, G]
+        self.features = nn.Parameter(torch.randn(1, c, g, g, g) * config.init_feature_std)  # [1, C, G, G, G]
         self.feature_dim = c
         self._build_heads()
         self._register_band_limit()

@@ -421,3 +421,18 @@ def test_sample_rays_matches_per_sample_evaluation(device, backend: str, light: 
 def test_axial_light_without_an_axis_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match="light-axis .* has no direction"):
         MediumConfig(backend="triplane", light="axial", light_axis=(0.0, 0.0, 0.0)).check_values()
+
+
+@pytest.mark.parametrize("backend", ["triplane", "voxel"])
+def test_grid_start_noise_follows_init_feature_std(backend: str) -> None:
+    torch.manual_seed(0)
+    default = MediumConfig(backend=backend).setup(BOUNDS)
+    assert float(default.features.detach().std()) == pytest.approx(0.1, rel=0.1)
+    torch.manual_seed(0)
+    quiet = MediumConfig(backend=backend, init_feature_std=0.0).setup(BOUNDS)
+    assert not quiet.features.any()
+    # a zero start still learns: the gradient reaches every grid cell a point reads
+    _perturb_heads(quiet)
+    x, d = _points(torch.device("cpu"))
+    quiet(x, d).beta.sum().backward()
+    assert float(quiet.features.grad.abs().sum()) > 0.0
