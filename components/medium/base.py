@@ -137,6 +137,12 @@ class MediumConfig(ComponentConfig):
     """Learning rate of the field's features and heads."""
     kappa_lr: Annotated[float, NonNegative] = 1e-2
     """Learning rate of log(kappa), the global extinction scale."""
+    feature_lr: Annotated[float, NonNegative] | None = None
+    """Learning rate of the grid backends' features (triplane, voxel); None: ``lr``. Adam moves
+    every cell by about its rate each step whatever the size of its gradient, so a cell whose
+    one-view gradients change sign from step to step wanders (a random walk of rate x sqrt(steps)),
+    while a consistent pull moves it rate x steps: a lower rate quiets the first far more than it
+    limits the second."""
     init_beta: Annotated[float, NonNegative] = 0.1
     """Initial extinction (1 / scene unit) everywhere; replaced by a dark-channel estimate when the
     pipeline initialises the medium from data."""

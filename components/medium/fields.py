@@ -54,12 +54,12 @@ class HeadedField(MediumField):
         return MediumSample(beta=beta, light=light[:, None, :].expand(-1, K, -1))
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
-        """One entry per parameter (one optimizer each); only log(kappa) has its own lr."""
-        cfg = self.config
-        return {
-            f"medium.{name}": (p, cfg.kappa_lr if name.endswith("log_kappa") else cfg.lr)
-            for name, p in self.named_parameters()
-        }
+        """One entry per parameter (one optimizer each); log(kappa) and grid features may have their
+        own lr."""
+        return {f"medium.{name}": (p, self._lr(name)) for name, p in self.named_parameters()}
+
+    def _lr(self, name: str) -> float:
+        return self.config.kappa_lr if name.endswith("log_kappa") else self.config.lr
 
     @torch.no_grad()
     def initialize(self, beta: float, light: Tensor) -> None:
@@ -83,6 +83,11 @@ class GridField(HeadedField):
 
     def set_band_limit(self, sigma: float) -> None:
         self.band_sigma.fill_(max(float(sigma), 0.0))
+
+    def _lr(self, name: str) -> float:
+        if name == "features" and self.config.feature_lr is not None:
+            return self.config.feature_lr
+        return super()._lr(name)
 
     def grid(self) -> Tensor:
         """The features as the lookup sees them: low-passed while a band limit is set."""

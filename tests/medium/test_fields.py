@@ -436,3 +436,23 @@ def test_grid_start_noise_follows_init_feature_std(backend: str) -> None:
     x, d = _points(torch.device("cpu"))
     quiet(x, d).beta.sum().backward()
     assert float(quiet.features.grad.abs().sum()) > 0.0
+
+
+def test_feature_lr_applies_to_grid_features_only() -> None:
+    for backend in ("triplane", "voxel"):
+        rates = {
+            k: lr
+            for k, (_, lr) in _make(backend, torch.device("cpu"), feature_lr=0.003).param_groups().items()
+        }
+        assert rates["medium.features"] == 0.003
+        assert rates["medium.heads.log_kappa"] == 0.01
+        assert all(
+            lr == 0.01 for k, lr in rates.items() if k not in ("medium.features", "medium.heads.log_kappa")
+        )
+        default = {k: lr for k, (_, lr) in _make(backend, torch.device("cpu")).param_groups().items()}
+        assert default["medium.features"] == 0.01  # None: the field's lr
+    const = {
+        k: lr
+        for k, (_, lr) in _make("constant", torch.device("cpu"), feature_lr=0.003).param_groups().items()
+    }
+    assert const["medium.features"] == 0.01  # one global vector, not a grid
