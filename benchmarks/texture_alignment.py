@@ -8,6 +8,7 @@ remove. For runs on generated scenes, on each test view's surface pixels (covera
 - the relative roughness of the mean extinction tau / z: the mean squared difference of
   adjacent pixels' tau / z (over the view's mean; depth edges left out), for the model (its T,
   its rendered depth) and for the truth (the generator's T and depth);
+- the same for the trained field marched to the true depth (the field alone, not the depth);
 - the share of the model's roughness that a linear fit on the luminance differences explains,
   per 8 x 8 pixel tile (a texture's sign of correlation changes from wall to wall), with the
   true clean image's luminance and with the hazy photo's.
@@ -80,7 +81,13 @@ def aligned_energy(t: Tensor, z: Tensor, surface: Tensor, image: Tensor, tile: i
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     pipe, dm = run.pipeline, run.datamanager
-    sums = {"rough_model": 0.0, "rough_true": 0.0, "aligned_clean": 0.0, "aligned_hazy": 0.0}
+    sums = {
+        "rough_model": 0.0,
+        "rough_model_true_z": 0.0,
+        "rough_true": 0.0,
+        "aligned_clean": 0.0,
+        "aligned_hazy": 0.0,
+    }
     n = 0
     for v in reference_views(dm):
         if dm.clean_image(v.index) is None:
@@ -96,6 +103,10 @@ def diagnose(config: Path) -> dict:
             path_extinction_roughness(
                 v.true_t[..., 0].clamp_min(1e-4), v.true_z[..., 0], true_surface, DEPTH_STEP
             )
+        )
+        t_true_z, _ = pipe.medium_at_depth(v.camera, v.true_z)  # the trained field, the true depth
+        sums["rough_model_true_z"] += float(
+            path_extinction_roughness(t_true_z[..., 0], v.true_z[..., 0], true_surface, DEPTH_STEP)
         )
         sums["aligned_clean"] += float(aligned_energy(t, z, surface, clean))
         sums["aligned_hazy"] += float(aligned_energy(t, z, surface, hazy))
@@ -115,11 +126,12 @@ def diagnose(config: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     head = (
-        "| arm | scene | seed | roughness of tau / z, model / truth | share aligned with the clean image "
-        "| with the hazy photo |\n|---|---|---|---|---|---|\n"
+        "| arm | scene | seed | roughness of tau / z, model / model at the true depth / truth "
+        "| share aligned with the clean image | with the hazy photo |\n|---|---|---|---|---|---|\n"
     )
     return head + "".join(
-        f"| {r['arm']} | {r['scene']} | {r['seed']} | {r['rough_model']:.4f} / {r['rough_true']:.4f} "
+        f"| {r['arm']} | {r['scene']} | {r['seed']} | {r['rough_model']:.4f} / "
+        f"{r['rough_model_true_z']:.4f} / {r['rough_true']:.4f} "
         f"| {100 * r['share_clean']:.0f} % | {100 * r['share_hazy']:.0f} % |\n"
         for r in rows
     )
