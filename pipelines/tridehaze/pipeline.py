@@ -423,14 +423,7 @@ class GaussianPipeline(Pipeline):
         bounds = FieldBounds.from_scene(scene.cameras.centers, scene.points)
         train_c2w = scene.cameras.camtoworlds[list(datamanager.train_indices)].detach().double().cpu().numpy()
         self.scene_up = torch.from_numpy(scene_up(train_c2w)).float()  # [3] for the clean render's fill
-        self.medium = config.medium.setup(bounds=bounds).to(datamanager.device)
-        if config.medium_coarse_to_fine > 0 and self.medium.has_medium and not self.medium.band_limits:
-            raise ConfigError(
-                f"--pipeline.medium-coarse-to-fine low-passes a grid; the {config.medium.backend!r} "
-                "medium has none",
-                fix="use --pipeline.medium.backend triplane or voxel, or leave "
-                "--pipeline.medium-coarse-to-fine at 0",
-            )
+        self.medium = self._build_medium(bounds)
         self.medium.bind_scene(scene.root, scene.transform)
         self.register_buffer("stage", torch.tensor(1, dtype=torch.int64))
         plan = _PriorPlan.decide(config, datamanager, self.medium.has_medium, training)
@@ -461,6 +454,20 @@ class GaussianPipeline(Pipeline):
         self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
         self._dens_weight: Tensor | None = None
+
+    def _build_medium(self, bounds: FieldBounds) -> MediumField:
+        """The medium field in ``bounds``, on the data's device; refuses a coarse-to-fine schedule
+        for a medium without a grid to low-pass."""
+        cfg = self.config
+        medium = cfg.medium.setup(bounds=bounds).to(self.datamanager.device)
+        if cfg.medium_coarse_to_fine > 0 and medium.has_medium and not medium.band_limits:
+            raise ConfigError(
+                f"--pipeline.medium-coarse-to-fine low-passes a grid; the {cfg.medium.backend!r} "
+                "medium has none",
+                fix="use --pipeline.medium.backend triplane or voxel, or leave "
+                "--pipeline.medium-coarse-to-fine at 0",
+            )
+        return medium
 
     def _light_verdict(self, max_steps: int) -> LightIsotropy:
         """The one-light verdict and the dark-channel weight it sets (measured only where the medium
