@@ -142,7 +142,9 @@ class MediumConfig(ComponentConfig):
     every cell by about its rate each step whatever the size of its gradient, so a cell whose
     one-view gradients change sign from step to step wanders (a random walk of rate x sqrt(steps)),
     while a consistent pull moves it rate x steps: a lower rate quiets the first far more than it
-    limits the second."""
+    limits the second. At 0.003 on ``tri-dehaze``, paired on the benchmark: -0.20 / +0.07 dB
+    (seeds 42 / 7; room-uniform up, field-sunlit -2.0 at one seed) and the field no smoother
+    (docs/results/medium_recovery.md, session 52)."""
     init_beta: Annotated[float, NonNegative] = 0.1
     """Initial extinction (1 / scene unit) everywhere; replaced by a dark-channel estimate when the
     pipeline initialises the medium from data."""
@@ -151,7 +153,8 @@ class MediumConfig(ComponentConfig):
     init_feature_std: Annotated[float, NonNegative] = 0.1
     """Std of the grid backends' (triplane, voxel) random start features. The heads' last layers
     start near zero, so the start is uniform; but as they grow, whatever of this noise the
-    gradient has not overwritten shows as spatial variation of the extinction."""
+    gradient has not overwritten shows as spatial variation of the extinction. A zero start leaves
+    the trained field as rough (room-uniform, session 52 of docs/results/medium_recovery.md)."""
     tv_weight: Annotated[float, NonNegative] = 0.0
     """Total-variation weight on grid features (keeps cells from drifting to extremes); 0 = off."""
     reference_scale: Annotated[tuple[float, float], NonNegative] = (1.0, 1.0)

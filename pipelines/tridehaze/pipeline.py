@@ -226,7 +226,9 @@ class GaussianPipelineConfig(PipelineConfig):
     Gaussian of this std (in grid cells), falling linearly to none over ``medium-coarse-fraction``
     of its learning (the hold's end to the freeze). Early in Stage I the Gaussians are coarse and
     the medium, a fast learner, takes up the surfaces' texture as thin slabs of haze; smooth haze
-    first leaves the texture to the Gaussians. Grid backends only (triplane, voxel); 0 = off."""
+    first leaves the texture to the Gaussians. Grid backends only (triplane, voxel); 0 = off. At 4,
+    paired on the benchmark at seed 42: -0.30 dB (6 of 8 scenes lower, T MAE unchanged), so it
+    stays off (docs/results/medium_recovery.md, session 52)."""
     medium_coarse_fraction: Annotated[float, Range(0.0, 1.0)] = 0.5
     """Share of the medium's learning over which the coarse-to-fine blur falls to zero."""
     init_medium: bool = True
