@@ -227,8 +227,8 @@ class GaussianPipelineConfig(PipelineConfig):
     of its learning (the hold's end to the freeze). Early in Stage I the Gaussians are coarse and
     the medium, a fast learner, takes up the surfaces' texture as thin slabs of haze; smooth haze
     first leaves the texture to the Gaussians. Grid backends only (triplane, voxel); 0 = off. At 4,
-    paired on the benchmark at seed 42: -0.30 dB (6 of 8 scenes lower, T MAE unchanged), so it
-    stays off (docs/results/medium_recovery.md, session 52)."""
+    paired on the benchmark: -0.30 / +0.15 dB (seeds 42 / 7; the patchy media up at both, the
+    dense and sunlit ones down, T MAE unchanged), so it stays off (docs/results/medium_recovery.md, session 52)."""
     medium_coarse_fraction: Annotated[float, Range(0.0, 1.0)] = 0.5
     """Share of the medium's learning over which the coarse-to-fine blur falls to zero."""
     init_medium: bool = True
