@@ -38,7 +38,11 @@ from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
-from components.losses.medium_texture import path_extinction_roughness  # noqa: E402
+from components.losses.medium_texture import (  # noqa: E402
+    path_extinction_roughness,
+    relative_mean_extinction,
+    same_surface_pairs,
+)
 from pipelines.engine.run_loader import load_run  # noqa: E402
 
 TILE = 8
@@ -54,23 +58,15 @@ def aligned_energy(t: Tensor, z: Tensor, surface: Tensor, image: Tensor, tile: i
     explained by a linear fit on the image's luminance differences, summed and divided by the
     pairs counted: the part of :func:`path_extinction_roughness` aligned with ``image``'s edges.
     t, z: [H, W]; surface: [H, W] bool; image: [H, W, 3]."""
-    mean_ext = -t.clamp_min(1e-12).log() / z.clamp_min(1e-6)  # [H, W]
-    on = surface.to(mean_ext.dtype)
-    rel = mean_ext / ((mean_ext * on).sum() / on.sum().clamp_min(1.0)).clamp_min(1e-6)
-    lum, log_z = image.mean(dim=-1), z.clamp_min(1e-6).log()  # [H, W]
+    rel = relative_mean_extinction(t, z, surface)  # [H, W]
+    lum = image.mean(dim=-1)  # [H, W]
     H, W = rel.shape
     th, tw = H // tile, W // tile
     cross, energy, pairs = rel.new_zeros(th, tw), rel.new_zeros(th, tw), rel.new_zeros(())
     for dim, pad in ((0, (0, 0, 0, 1)), (1, (0, 1))):
-        n = rel.shape[dim] - 1
-        same = (
-            (log_z.diff(dim=dim).abs() < DEPTH_STEP).to(rel.dtype)
-            * on.narrow(dim, 0, n)
-            * on.narrow(dim, 1, n)
-        )
-        d_rel = F.pad(rel.diff(dim=dim) * same, pad)[
-            : th * tile, : tw * tile
-        ]  # each pair in its first pixel's tile
+        same = same_surface_pairs(z, surface, dim, DEPTH_STEP).to(rel.dtype)
+        # each pair counted in its first pixel's tile
+        d_rel = F.pad(rel.diff(dim=dim) * same, pad)[: th * tile, : tw * tile]
         d_lum = F.pad(lum.diff(dim=dim) * same, pad)[: th * tile, : tw * tile]
         cross = cross + (d_rel * d_lum).reshape(th, tile, tw, tile).sum(dim=(1, 3))
         energy = energy + d_lum.square().reshape(th, tile, tw, tile).sum(dim=(1, 3))
@@ -90,12 +86,12 @@ def diagnose(config: Path) -> dict:
     }
     n = 0
     for v in reference_views(dm):
-        if dm.clean_image(v.index) is None:
+        clean = dm.clean_image(v.index)  # [H, W, 3]
+        if clean is None:
             continue
         out = pipe.render(v.camera)
         t, z = out["transmittance"][..., 0], out["depth"][..., 0]  # [H, W]
         surface = out["alpha"][..., 0] >= SURFACE
-        clean = dm.clean_image(v.index)  # [H, W, 3]
         hazy = dm.image(v.index)  # [H, W, 3]
         sums["rough_model"] += float(path_extinction_roughness(t, z, surface, DEPTH_STEP))
         true_surface = torch.ones_like(surface)  # every true ray ends on something

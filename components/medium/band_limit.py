@@ -38,7 +38,6 @@ def blur_grid(grid: Tensor, sigma: float) -> Tensor:
         raise ValueError(f"blur_grid takes a [B, C, H, W] or [B, C, D, H, W] grid, got {tuple(grid.shape)}")
     k = gaussian_kernel(sigma).to(grid)
     r = (len(k) - 1) // 2
-    B, C = grid.shape[:2]
     out = grid
     for axis in range(dims):  # separable: one 1D pass per spatial axis
         moved = out.movedim(2 + axis, -1)  # [B, C, ..., L]
@@ -49,7 +48,7 @@ def blur_grid(grid: Tensor, sigma: float) -> Tensor:
         padded = flat[..., idx]  # [N, 1, L + 2 r]
         smooth = F.conv1d(padded, k.view(1, 1, -1))  # [N, 1, L]
         out = smooth.reshape(shape).movedim(-1, 2 + axis)
-    return out.reshape(B, C, *grid.shape[2:])
+    return out
 
 
 def coarse_to_fine_sigma(step: int, start: int, end: int, sigma0: float) -> float:
