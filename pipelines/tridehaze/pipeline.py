@@ -155,6 +155,11 @@ class GaussianPipelineConfig(PipelineConfig):
     penalises only T below it, since the prior under-estimates t on surfaces without dark pixels;
     ``lower-own-light`` the same bound recomputed each step with the medium's own light along each
     ray as the airlight (one airlight per image over-estimates t where the haze light is dimmer)."""
+    dcp_omega: Annotated[float, Range(0.5, 1.0)] = 0.95
+    """The dark channel's omega in the ``lower-own-light`` bound T >= 1 - omega min(I / L). He et
+    al.'s 0.95 keeps a little haze for looks; on a black clean patch it lies (1 - omega)(1 - T)
+    above the true T, which holds dense haze too thin wherever the bound is active. 1 is the bound
+    the physics gives where T is even over the patch (J >= 0 at the patch's darkest pixel)."""
     dcp_upper_weight: Annotated[float, Range(0.0, 1.0)] = 0.0
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
@@ -687,7 +692,7 @@ class GaussianPipeline(Pipeline):
         if stage == 1 and lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
             t_prior, mask = prior.t_dcp, None
             if cfg.dcp_bound == "lower-own-light":
-                t_prior, mask = self._own_light_bound(target, med)
+                t_prior, mask = self._own_light_bound(target, med, cfg.dcp_omega)
             lower = cfg.dcp_bound != "two-sided"
             weight = T.detach() if cfg.dcp_weighting == "transmittance" else None
             dcp = dcp_transmittance_loss(
@@ -724,13 +729,13 @@ class GaussianPipeline(Pipeline):
         return depth_spread(self.model.render_values(self.rasterizer, cam, values)[0])
 
     @staticmethod
-    def _own_light_bound(target: Tensor, med: MediumRender) -> tuple[Tensor, Tensor]:
+    def _own_light_bound(target: Tensor, med: MediumRender, omega: float) -> tuple[Tensor, Tensor]:
         """The dark-channel bound on T [H, W] with the medium's light along each ray as airlight
         (S / (1 - T), detached), and where it is defined: pixels with at least 5 % haze."""
         haze = 1.0 - med.pixel_transmittance().detach()  # [H, W, 1]
         light = med.ray_light(0.05).detach()  # [H, W, 3]
         H, W = haze.shape[:2]
-        bound = dark_channel_bound(target, light, default_patch(H, W))  # [H, W]
+        bound = dark_channel_bound(target, light, default_patch(H, W), omega)  # [H, W]
         return bound, haze[..., 0] >= 0.05
 
     def _training_composite(
