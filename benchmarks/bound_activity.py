@@ -20,7 +20,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import torch
 from torch import Tensor
 
 REPO = Path(__file__).resolve().parents[1]
@@ -44,7 +43,9 @@ VIEW_STRIDE = 3
 COLUMNS = ("model", "true", "own_095", "own_1", "true_1", "active")
 
 
-def view_maps(image: Tensor, t_model: Tensor, s_model: Tensor, t_true: Tensor, s_true: Tensor) -> dict[str, Tensor]:
+def view_maps(
+    image: Tensor, t_model: Tensor, s_model: Tensor, t_true: Tensor, s_true: Tensor
+) -> dict[str, Tensor]:
     """Per-pixel maps [H, W] of one view: T model / true, the three bounds, the active mask
     (image, S: [H, W, 3]; T: [H, W, 1])."""
     patch = default_patch(*image.shape[:2])
@@ -80,7 +81,11 @@ def diagnose(config: Path) -> dict:
                 sums[b][k] += float(maps[k][m].sum())
     if not any(s["n"] for s in sums.values()):
         raise SystemExit(f"{config}: the dataset has no true transmittance and scattering maps")
-    row: dict = {"run": str(config.parent), "scene": Path(str(run.config.dataset.data)).name, "seed": run.config.seed}
+    row: dict = {
+        "run": str(config.parent),
+        "scene": Path(str(run.config.dataset.data)).name,
+        "seed": run.config.seed,
+    }
     total = sum(s["n"] for s in sums.values())
     for b, s in sums.items():
         row[f"{b}_share"] = s["n"] / total
