@@ -392,6 +392,18 @@ def test_dark_channel_bound_with_full_upper_weight_is_the_two_sided_loss(scenes,
     assert d_bound < d_two  # the pure bound drops the side above the estimate
 
 
+def test_dark_channel_omega_reaches_the_own_light_bound(scenes, tmp_path, device):
+    """``--pipeline.dcp-omega``: the ``lower-own-light`` bound 1 - omega min(I / L) falls as omega
+    grows, so with the same medium (same scene, seed, first step) a larger omega pays less."""
+    args = ("--pipeline.dcp-bound", "lower-own-light", "--pipeline.lambda-dcp", "1.0")
+    losses = []
+    for omega in ("0.9", "0.95", "1.0"):
+        t = _trainer(scenes["sky"], tmp_path / omega, device, *args, "--pipeline.dcp-omega", omega)
+        t.pipeline.medium.initialize(3.0, torch.full((3,), 0.7))  # dense: T under every bound
+        losses.append(float(t.pipeline.train_loss(0).metrics["dcp"]))
+    assert losses[0] > losses[1] > losses[2] >= 0.0
+
+
 def test_dark_channel_weighting_by_transmittance_reaches_the_loss(scenes, tmp_path, device):
     """``--pipeline.dcp-weighting transmittance``: each pixel's penalty times its rendered T, so
     with the haze dense (every T < 1) the term is smaller than the uniform one but not zero."""
