@@ -114,7 +114,7 @@ def check_numbers(cfg: Any, _prefix: str = "") -> None:
         value = getattr(cfg, f.name)
         flag = f"--{_prefix}{f.name}".replace("_", "-")
         items = value if isinstance(value, (tuple, list)) else (value,)
-        ranges = [m for m in getattr(hints.get(f.name), "__metadata__", ()) if isinstance(m, Range)]
+        ranges = [m for m in _metadata(hints.get(f.name)) if isinstance(m, Range)]
         for v in items:
             if isinstance(v, float) and not math.isfinite(v):
                 raise ConfigError(f"{flag} must be a finite number, got {v}", fix="pass a finite value")
@@ -124,6 +124,14 @@ def check_numbers(cfg: Any, _prefix: str = "") -> None:
                         raise ConfigError(f"{flag} {problem}")
         if dataclasses.is_dataclass(value):
             check_numbers(value, f"{_prefix}{f.name}.")
+
+
+def _metadata(hint: Any) -> tuple[Any, ...]:
+    """An ``Annotated`` hint's metadata, also inside an optional one (``Annotated[float, R] | None``)."""
+    meta = getattr(hint, "__metadata__", ())
+    if not meta and typing.get_origin(hint) in (typing.Union, types.UnionType):
+        meta = tuple(m for arg in typing.get_args(hint) for m in getattr(arg, "__metadata__", ()))
+    return meta
 
 
 def _hints(cls: type) -> dict[str, Any]:

@@ -94,6 +94,11 @@ class LightIsotropy(nn.Module):
             self._strong = self._raises()
         return self.strong if self._strong else self.weak
 
+    def raised(self, step: int) -> bool:
+        """Whether the weight at ``step`` is the raised one (the decision taken, one light)."""
+        self.weight(step)  # takes the decision at its step
+        return self.measures and step >= self.decision_step and bool(self._strong)
+
     def measured_cv(self) -> float | None:
         """The light's spread the decision was made on; None before the decision or where no
         pixel had enough haze to measure it."""

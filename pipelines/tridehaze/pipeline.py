@@ -160,6 +160,10 @@ class GaussianPipelineConfig(PipelineConfig):
     al.'s 0.95 keeps a little haze for looks; on a black clean patch it lies (1 - omega)(1 - T)
     above the true T, which holds dense haze too thin wherever the bound is active. 1 is the bound
     the physics gives where T is even over the patch (J >= 0 at the patch's darkest pixel)."""
+    dcp_omega_strong: Annotated[float, Range(0.5, 1.0)] | None = None
+    """``dcp_omega`` while the raised dark-channel weight holds (``lambda_dcp_isotropic`` on a run
+    judged one light); None: ``dcp_omega`` throughout. Weight 1 pins such a run's haze to the
+    bound, so the margin lifts its opaque haze to T ~ 0.05 against a true ~0.01."""
     dcp_upper_weight: Annotated[float, Range(0.0, 1.0)] = 0.0
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
@@ -692,7 +696,10 @@ class GaussianPipeline(Pipeline):
         if stage == 1 and lambda_dcp > 0 and prior is not None and prior.t_dcp is not None:
             t_prior, mask = prior.t_dcp, None
             if cfg.dcp_bound == "lower-own-light":
-                t_prior, mask = self._own_light_bound(target, med, cfg.dcp_omega)
+                omega = cfg.dcp_omega
+                if cfg.dcp_omega_strong is not None and self.light_isotropy.raised(step):
+                    omega = cfg.dcp_omega_strong
+                t_prior, mask = self._own_light_bound(target, med, omega)
             lower = cfg.dcp_bound != "two-sided"
             weight = T.detach() if cfg.dcp_weighting == "transmittance" else None
             dcp = dcp_transmittance_loss(

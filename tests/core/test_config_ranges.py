@@ -55,6 +55,19 @@ def test_nested_fields_and_tuples_are_checked(inner, message):
         check_numbers(Outer(inner=inner))
 
 
+@dataclass
+class OptionalOutside:
+    rate: Annotated[float, NonNegative] | None = None
+
+
+def test_a_range_on_an_optional_field_is_checked():
+    """``Annotated[float, R] | None`` (the range inside the union) as well as ``Annotated[float | None, R]``."""
+    with pytest.raises(ConfigError, match="--rate must be >= 0, got -1.0"):
+        check_numbers(OptionalOutside(rate=-1.0))
+    check_numbers(OptionalOutside(rate=None))
+    check_numbers(OptionalOutside(rate=0.5))
+
+
 def test_none_and_bools_pass():
     check_numbers(Outer(inner=Inner(rate=None), flag=True))
 

@@ -40,6 +40,14 @@ def test_an_even_light_gets_the_strong_weight_from_the_decision_step():
         float(light.std(unbiased=False) / light.mean()), rel=1e-4
     )
     assert "one light" in iso.decisions[0].message and "weight 1 from step 10" in iso.decisions[0].message
+    assert [iso.raised(s) for s in (9, 10, 14)] == [False, True, True]
+
+
+def test_a_varying_light_is_never_raised():
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(5, 10))
+    light = torch.linspace(0.3, 0.9, 64).reshape(8, 8)  # cv ~0.3: not one light
+    _run(light, range(12), iso)
+    assert not any(iso.raised(s) for s in range(12))
 
 
 def test_judged_one_light_only_after_an_even_verdict():
