@@ -227,6 +227,11 @@ class GaussianPipelineConfig(PipelineConfig):
     """Step at which the medium is frozen and Stage II begins (None: ``freeze_fraction`` of the run)."""
     freeze_fraction: float = 0.2
     """Stage I length as a fraction of ``--max-steps`` when ``freeze_step`` is None (paper: 3k/15k)."""
+    stage_two_holds_haze: bool = False
+    """Stage II also holds the haze each pixel sees: the composite's end depth and coverage are
+    detached, so the Gaussians cannot move along the rays to change T and S once the medium is
+    frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
+    0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py)."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
@@ -597,7 +602,7 @@ class GaussianPipeline(Pipeline):
         depth = out.depth[0]  # [H, W, 1]
         metrics: dict[str, Tensor] = {}  # detached scalars; read by the trainer in one transfer
         with record_function("td.medium"):
-            med = self._medium(cam, out)
+            med = self._medium(cam, out, hold=stage == 2 and cfg.stage_two_holds_haze)
         with record_function("td.composite+loss"):
             hazy = clean if med is None else self._training_composite(clean, out, med, bg, stage)
             loss, terms = self.loss_fn(hazy, target)
@@ -798,11 +803,14 @@ class GaussianPipeline(Pipeline):
         # no step (rendering for eval/view): all SH bands
         return self.model.render(self.rasterizer, camera, 10**9 if step is None else step, background)
 
-    def _medium(self, camera: Cameras, out: RasterizeOutput) -> MediumRender | None:
-        """T and S for the view, or None without a medium."""
+    def _medium(self, camera: Cameras, out: RasterizeOutput, hold: bool = False) -> MediumRender | None:
+        """T and S for the view, or None without a medium; ``hold``: no gradient to the depth and
+        coverage the rays end at."""
         if not self.medium.has_medium:
             return None
         depth, alpha = out.depth[0], out.alpha[0]  # [H, W, 1]
+        if hold:
+            depth, alpha = depth.detach(), alpha.detach()
         return self.medium.render_view(self.compositor, camera, depth, alpha, self.model, self.rasterizer)
 
     @torch.no_grad()
