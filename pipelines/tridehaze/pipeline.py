@@ -159,11 +159,14 @@ class GaussianPipelineConfig(PipelineConfig):
     """The dark channel's omega in the ``lower-own-light`` bound T >= 1 - omega min(I / L). He et
     al.'s 0.95 keeps a little haze for looks; on a black clean patch it lies (1 - omega)(1 - T)
     above the true T, which holds dense haze too thin wherever the bound is active. 1 is the bound
-    the physics gives where T is even over the patch (J >= 0 at the patch's darkest pixel)."""
+    the physics gives where T is even over the patch (J >= 0 at the patch's darkest pixel); it moved
+    dense haze towards the truth but let the one-light rooms go too dense: +0.08 / +0.22 dB on the
+    benchmark (courtyard-dense alone), -0.87 on the holdout set (docs/results/medium_recovery.md, session 53)."""
     dcp_omega_strong: Annotated[float, Range(0.5, 1.0)] | None = None
     """``dcp_omega`` while the raised dark-channel weight holds (``lambda_dcp_isotropic`` on a run
     judged one light); None: ``dcp_omega`` throughout. Weight 1 pins such a run's haze to the
-    bound, so the margin lifts its opaque haze to T ~ 0.05 against a true ~0.01."""
+    bound, so the margin lifts its opaque haze to T ~ 0.05 against a true ~0.01. At 1: -0.35 dB on
+    the holdout set's one-light scenes (courtyard-height -0.89), so it stays None (session 53)."""
     dcp_upper_weight: Annotated[float, Range(0.0, 1.0)] = 0.0
     """With a ``lower`` bound: the share of the squared error still paid where T is above the dark
     channel (0: a pure bound; 1: the two-sided loss). Dense or homogeneous haze, where the dark
@@ -231,7 +234,8 @@ class GaussianPipelineConfig(PipelineConfig):
     """Stage II also holds the haze each pixel sees: the composite's end depth and coverage are
     detached, so the Gaussians cannot move along the rays to change T and S once the medium is
     frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
-    0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py)."""
+    0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py). Measured
+    -0.03 / -0.03 dB (seeds 42 / 7), the drift unchanged: it is not the composite's gradient (session 53)."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""

@@ -43,3 +43,37 @@ def test_a_run_without_the_freeze_checkpoint_is_reported_empty(saved_at_freeze, 
     row = run_diagnosis("stage_two_change.py", [saved_at_freeze[1]], out)
     assert row["freeze_psnr"] is None and row["end_step"] == 5
     assert "| - -> " in out.with_suffix(".md").read_text()
+
+
+def test_a_run_continued_from_its_freeze_reproduces_itself(tmp_path):
+    """benchmarks/stage_two_arm.py: a run continued from its freeze checkpoint with no change ends
+    where it ended (the premise of pairing Stage II changes that way); with a change it still runs."""
+    import json
+    import subprocess
+    import sys
+
+    from tests.eval.diagnosis_script import REPO
+    from tests.tiny_scenes import tiny_hazy_scene
+
+    scene = tiny_hazy_scene(
+        tmp_path / "courtyard", layout="courtyard", seed=3, num_views=6, width=40, height=30, samples=16,
+        num_points=300, test_every=3,
+    )  # fmt: skip
+    bench = tmp_path / "bench"
+    config = train_tiny(scene, bench / "seed42" / "runs", "--device", "cpu", "--steps-per-save", "3", steps=5)
+    subprocess.run(
+        [sys.executable, "-m", "tridehaze_plugin.cli.eval", "--load-config", str(config), "--lpips", "off", "--no-images"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    for name, extra in (("same", ""), ("held", "--pipeline.stage-two-holds-haze")):
+        out = tmp_path / name
+        cmd = [sys.executable, str(REPO / "benchmarks" / "stage_two_arm.py"), "--base", str(bench), "--output", str(out),
+               "--jobs", "1", f"--train-args={extra}"]  # fmt: skip
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        (row,) = json.loads((out / "pairs.json").read_text())
+        assert row["scene"] == "courtyard" and row["seed"] == "seed42"
+        if name == "same":
+            assert row["continued"] == row["base"]
+        else:
+            assert "stage_two_holds_haze: true" in (out / "seed42" / "courtyard" / "config.yml").read_text()

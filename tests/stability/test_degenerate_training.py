@@ -404,6 +404,28 @@ def test_dark_channel_omega_reaches_the_own_light_bound(scenes, tmp_path, device
     assert losses[0] > losses[1] > losses[2] >= 0.0
 
 
+def test_stage_two_holds_the_haze_only_when_asked(scenes, tmp_path, device, monkeypatch):
+    """``--pipeline.stage-two-holds-haze``: in Stage II the depth the medium is marched to carries no
+    gradient (tri-dehaze's composite otherwise lets the Gaussians move along the rays)."""
+    for held in (False, True):
+        args = ("--pipeline.stage-two-holds-haze",) if held else ()
+        pipe = _trainer(scenes["sky"], tmp_path / str(held), device, *args).pipeline
+        seen: list[bool] = []
+        march = pipe.medium.render_view
+
+        def spy(compositor, camera, depth, alpha, *rest, march=march, seen=seen):
+            seen.append(depth.requires_grad)
+            return march(compositor, camera, depth, alpha, *rest)
+
+        monkeypatch.setattr(pipe.medium, "render_view", spy)
+        grads = []
+        for step in (0, 7):  # Stage I, Stage II (the freeze at step 6)
+            seen.clear()
+            pipe.train_loss(step)  # the step's own view is marched last (after any fit at the freeze)
+            grads.append(seen[-1])
+        assert grads == [True, not held]
+
+
 def test_dark_channel_weighting_by_transmittance_reaches_the_loss(scenes, tmp_path, device):
     """``--pipeline.dcp-weighting transmittance``: each pixel's penalty times its rendered T, so
     with the haze dense (every T < 1) the term is smaller than the uniform one but not zero."""
