@@ -28,6 +28,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from stage_two_change import headline  # noqa: E402
+
 from pipelines.engine.checkpoint import checkpoint_path  # noqa: E402
 from pipelines.engine.run_config import load_config  # noqa: E402
 from pipelines.tridehaze.priors import scaled_step  # noqa: E402
@@ -67,14 +69,7 @@ def continue_run(run: Path, dest: Path, args: list[str]) -> Path:
 
 
 def scores(path: Path) -> dict[str, float | None]:
-    r = json.loads(path.read_text())
-    medium, observable = r.get("medium") or {}, r.get("observable") or {}
-    return {
-        "psnr": r["restoration"]["psnr"],
-        "observable": observable.get("psnr"),
-        "t_mae": medium.get("t_mae"),
-        "s_mae": medium.get("s_mae"),
-    }
+    return headline(json.loads(path.read_text()))
 
 
 def main() -> None:

@@ -33,17 +33,21 @@ from pipelines.tridehaze.priors import scaled_step  # noqa: E402
 STAGES = ("freeze", "end")
 
 
-def _scores(config: Path, checkpoint: Path) -> dict:
-    run = load_run(config, checkpoint=checkpoint)
-    r = evaluate(run.pipeline, run.datamanager, "test")
+def headline(r: dict) -> dict[str, float | None]:
+    """The numbers these comparisons read from an evaluation (``evaluate``'s dict or td-eval's JSON)."""
     medium, observable = r.get("medium") or {}, r.get("observable") or {}
     return {
         "psnr": r["restoration"]["psnr"],
         "observable": observable.get("psnr"),
         "t_mae": medium.get("t_mae"),
+        "s_mae": medium.get("s_mae"),
         "t_mae_true_depth": medium.get("t_mae_true_depth"),
-        "step": run.step,
     }
+
+
+def _scores(config: Path, checkpoint: Path) -> dict:
+    run = load_run(config, checkpoint=checkpoint)
+    return {**headline(evaluate(run.pipeline, run.datamanager, "test")), "step": run.step}
 
 
 def diagnose(config: Path) -> dict:
