@@ -44,15 +44,21 @@ def base_runs(base: Path) -> list[tuple[str, str, Path]]:
     return found
 
 
-def continue_run(run: Path, dest: Path, args: list[str]) -> Path:
-    """Copy ``run`` to ``dest`` from its freeze checkpoint, continue it with ``args``, evaluate it."""
-    result = dest / "eval.json"
-    if result.is_file():
-        return result
+def freeze_step(run: Path) -> int:
+    """The run's freeze step, whose checkpoint must exist (read in the main thread: the method
+    registry fills on first use)."""
     cfg = load_config(run / "config.yml")
     freeze = scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, cfg.max_steps)
     if not checkpoint_path(run, freeze).is_file():
         raise SystemExit(f"{run}: no checkpoint at the freeze (step {freeze}); save every 750 steps")
+    return freeze
+
+
+def continue_run(run: Path, freeze: int, dest: Path, args: list[str]) -> Path:
+    """Copy ``run`` to ``dest`` from its freeze checkpoint, continue it with ``args``, evaluate it."""
+    result = dest / "eval.json"
+    if result.is_file():
+        return result
     shutil.rmtree(dest, ignore_errors=True)
     shutil.copytree(run, dest, ignore=shutil.ignore_patterns("eval"))
     for ckpt in (dest / "checkpoints").glob("step-*.ckpt"):
@@ -81,8 +87,10 @@ def main() -> None:
     args = ap.parse_args()
     runs = base_runs(args.base)
     extra = shlex.split(args.train_args)
+    freezes = [freeze_step(run) for _, _, run in runs]
     with ThreadPoolExecutor(args.jobs) as pool:
-        done = list(pool.map(lambda r: continue_run(r[2], args.output / r[0] / r[1], extra), runs))
+        jobs = [(r, f, args.output / r[0] / r[1]) for r, f in zip(runs, freezes, strict=True)]
+        done = list(pool.map(lambda j: continue_run(j[0][2], j[1], j[2], extra), jobs))
     rows = []
     for (seed, scene, run), result in zip(runs, done, strict=True):
         before = scores(run / "eval" / "test.json") if (run / "eval" / "test.json").is_file() else None
