@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -172,23 +173,27 @@ def method(name: str, description: str) -> Callable[[Callable[[], Any]], Callabl
 
 
 _loaded = False
+_loading = threading.RLock()
+"""Held while the registry fills: another thread waits for it (it found an empty registry), while
+an import inside the fill, on the same thread, passes through and sees it loaded."""
 
 
 def load_all(*, force: bool = False, warn: Callable[[str], None] | None = None) -> Registry:
     """Import built-ins, then entry-point and environment plugins, once per process."""
     global _loaded
-    if _loaded and not force:
+    with _loading:
+        if _loaded and not force:
+            return REGISTRY
+        _loaded = True
+        for module in builtin_modules():
+            importlib.import_module(module)  # a broken built-in is a bug: let it raise
+        warn = warn or _warn_stderr
+        before = len(REGISTRY.failures)
+        _load_entry_points(REGISTRY)
+        _load_env_plugins(REGISTRY, os.environ.get(PLUGIN_ENV_VAR, ""))
+        for failure in REGISTRY.failures[before:]:
+            warn(failure.message())
         return REGISTRY
-    _loaded = True
-    for module in builtin_modules():
-        importlib.import_module(module)  # a broken built-in is a bug: let it raise
-    warn = warn or _warn_stderr
-    before = len(REGISTRY.failures)
-    _load_entry_points(REGISTRY)
-    _load_env_plugins(REGISTRY, os.environ.get(PLUGIN_ENV_VAR, ""))
-    for failure in REGISTRY.failures[before:]:
-        warn(failure.message())
-    return REGISTRY
 
 
 def _warn_stderr(msg: str) -> None:

@@ -120,3 +120,33 @@ def test_patched_entry_points_register_method_and_component(monkeypatch):
     assert not r.failures, r.failures
     assert r.get("method", "ep-method") is spec
     assert "ep-medium" in r.names("medium")
+
+
+def test_a_second_thread_waits_for_the_registry_to_fill(monkeypatch):
+    """The first load marks the registry loaded before its imports finish; another thread asking
+    meanwhile must wait for them, not get the half-filled registry (two loaders of run configs in
+    threads found no method at all)."""
+    import threading
+    import time
+
+    from tridehaze_plugin import registry
+
+    events: list[str] = []
+
+    def slow_import(name: str) -> None:
+        events.append("import starts")
+        time.sleep(0.3)
+        events.append("import ends")
+
+    monkeypatch.setattr(registry, "_loaded", False)
+    monkeypatch.setattr(registry, "builtin_modules", lambda: ["slow"])
+    monkeypatch.setattr(registry.importlib, "import_module", slow_import)
+    monkeypatch.setattr(registry, "_load_entry_points", lambda reg: None)
+    monkeypatch.setattr(registry, "_load_env_plugins", lambda reg, spec: None)
+    first = threading.Thread(target=registry.load_all)
+    first.start()
+    time.sleep(0.05)
+    registry.load_all()
+    events.append("second returns")
+    first.join()
+    assert events == ["import starts", "import ends", "second returns"]
