@@ -94,9 +94,10 @@ def validate(cfg: Any, registry: Registry | None = None, _prefix: str = "") -> N
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
         flag = f"--{_prefix}{f.name}".replace("_", "-")
-        for meta in getattr(hints.get(f.name), "__metadata__", ()):
+        for meta in _metadata(hints.get(f.name)):
             if (
                 isinstance(meta, RegistryChoice)
+                and value is not None  # an optional choice left unset
                 and value not in meta.allow
                 and (meta.kind, value) not in registry
             ):
@@ -129,8 +130,8 @@ def check_numbers(cfg: Any, _prefix: str = "") -> None:
 def _metadata(hint: Any) -> tuple[Any, ...]:
     """An ``Annotated`` hint's metadata, also inside an optional one (``Annotated[float, R] | None``)."""
     meta = getattr(hint, "__metadata__", ())
-    if not meta and typing.get_origin(hint) in (typing.Union, types.UnionType):
-        meta = tuple(m for arg in typing.get_args(hint) for m in getattr(arg, "__metadata__", ()))
+    if not meta and get_origin(hint) in (Union, types.UnionType):
+        meta = tuple(m for arg in get_args(hint) for m in getattr(arg, "__metadata__", ()))
     return meta
 
 

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import pytest
 
 from pipelines.engine.config import TrainerConfig
 from pipelines.engine.run_config import HEADER_KEYS, load_config, save_config
-from tridehaze_plugin.config import merge_dict, read_yaml_mapping, to_dict, validate
+from tridehaze_plugin.config import RegistryChoice, merge_dict, read_yaml_mapping, to_dict, validate
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import load_all
 
@@ -75,6 +77,19 @@ def test_registry_choice_validation_names_the_flag():
     )
     cfg.pipeline.rasterizer.backend = "auto"  # allowed extra value
     validate(cfg)
+
+
+@dataclass
+class WithOptional:
+    backend: Annotated[str, RegistryChoice("rasterizer")] | None = None
+
+
+def test_an_optional_registry_choice_is_validated_when_set():
+    """``Annotated[str, RegistryChoice(...)] | None``: unset passes, a wrong name is refused."""
+    validate(WithOptional())
+    validate(WithOptional(backend="torch"))
+    with pytest.raises(ConfigError, match="unknown rasterizer 'warp-drive'"):
+        validate(WithOptional(backend="warp-drive"))
 
 
 def test_load_config_missing_and_unknown_method(tmp_path):
