@@ -21,6 +21,13 @@ def publish(
     plot(rows, stem.with_suffix(".png"))
 
 
+def fmt(v: float | None, digits: int = 3, sign: bool = False) -> str:
+    """A table cell: ``-`` for a missing value, else ``digits`` decimals (signed with ``sign``)."""
+    if v is None:
+        return "-"
+    return f"{v:+.{digits}f}" if sign else f"{v:.{digits}f}"
+
+
 def diagnose_runs_main(
     doc: str,
     diagnose: Callable[[Path], dict],

@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from dcp_bound_split import light_along_rays  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
@@ -94,10 +94,6 @@ def diagnose(config: Path) -> dict:
     return row
 
 
-def _f(v: float | None) -> str:
-    return "-" if v is None else f"{v:.3f}"
-
-
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | true-T bin (share) | T model / true | own bound 0.95 / 1 | true-light bound 1 | "
@@ -110,8 +106,8 @@ def markdown(rows: list[dict]) -> str:
                 continue
             lines.append(
                 f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {b} ({100 * r[f'{b}_share']:.0f} %) | "
-                f"{_f(r[f'{b}_model'])} / {_f(r[f'{b}_true'])} | {_f(r[f'{b}_own_095'])} / {_f(r[f'{b}_own_1'])} | "
-                f"{_f(r[f'{b}_true_1'])} | {100 * (r[f'{b}_active'] or 0.0):.0f} % |"
+                f"{fmt(r[f'{b}_model'])} / {fmt(r[f'{b}_true'])} | {fmt(r[f'{b}_own_095'])} / {fmt(r[f'{b}_own_1'])} | "
+                f"{fmt(r[f'{b}_true_1'])} | {100 * (r[f'{b}_active'] or 0.0):.0f} % |"
             )
     return "\n".join(lines) + "\n"
 

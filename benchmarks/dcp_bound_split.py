@@ -30,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
 from components.losses.dcp import dark_channel_bound, default_patch  # noqa: E402
@@ -115,12 +115,6 @@ def diagnose(config: Path) -> dict:
     return row
 
 
-def _f(v: float | None, digits: int = 3, sign: bool = False) -> str:
-    if v is None:
-        return "-"
-    return f"{v:+.{digits}f}" if sign else f"{v:.{digits}f}"
-
-
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | tight share | T bias all / tight / loose | T MAE tight / loose | "
@@ -128,12 +122,12 @@ def markdown(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        bias = " / ".join(_f(r[k], sign=True) for k in ("bias", "tight_bias", "loose_bias"))
-        mae = " / ".join(_f(r[k]) for k in ("tight_mae", "loose_mae"))
-        viol = f"{_f(r['violation_true_light'])} / {_f(r['violation_own_light'])}"
+        bias = " / ".join(fmt(r[k], sign=True) for k in ("bias", "tight_bias", "loose_bias"))
+        mae = " / ".join(fmt(r[k]) for k in ("tight_mae", "loose_mae"))
+        viol = f"{fmt(r['violation_true_light'])} / {fmt(r['violation_own_light'])}"
         lines.append(
             f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {100 * (r['tight_share'] or 0):.0f} % | "
-            f"{bias} | {mae} | {viol} | {_f(r['light_ratio'], 2)} |"
+            f"{bias} | {mae} | {viol} | {fmt(r['light_ratio'], 2)} |"
         )
     return "\n".join(lines) + "\n"
 

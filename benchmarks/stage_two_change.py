@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
 from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint  # noqa: E402
@@ -64,10 +64,6 @@ def diagnose(config: Path) -> dict:
     return row
 
 
-def _f(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
 def _change(row: dict, key: str) -> str:
     a, b = row[f"freeze_{key}"], row[f"end_{key}"]
     return "-" if a is None or b is None else f"{b - a:+.2f}"
@@ -81,10 +77,10 @@ def markdown(rows: list[dict]) -> str:
     ]
     for r in rows:
         lines.append(
-            f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {_f(r['freeze_psnr'])} -> {_f(r['end_psnr'])} | "
-            f"{_change(r, 'psnr')} | {_f(r['freeze_observable'])} -> {_f(r['end_observable'])} | "
-            f"{_f(r['freeze_t_mae'], 3)} -> {_f(r['end_t_mae'], 3)} | "
-            f"{_f(r['freeze_t_mae_true_depth'], 3)} -> {_f(r['end_t_mae_true_depth'], 3)} |"
+            f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {fmt(r['freeze_psnr'], 2)} -> {fmt(r['end_psnr'], 2)} | "
+            f"{_change(r, 'psnr')} | {fmt(r['freeze_observable'], 2)} -> {fmt(r['end_observable'], 2)} | "
+            f"{fmt(r['freeze_t_mae'], 3)} -> {fmt(r['end_t_mae'], 3)} | "
+            f"{fmt(r['freeze_t_mae_true_depth'], 3)} -> {fmt(r['end_t_mae_true_depth'], 3)} |"
         )
     both = [r for r in rows if r["freeze_psnr"] is not None and r["end_psnr"] is not None]
     if both:
