@@ -28,11 +28,10 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from stage_two_change import headline  # noqa: E402
+from stage_two_change import freeze_step_of, headline  # noqa: E402
 
-from pipelines.engine.checkpoint import checkpoint_path  # noqa: E402
+from pipelines.engine.checkpoint import CHECKPOINT_GLOB, checkpoint_path  # noqa: E402
 from pipelines.engine.run_config import load_config  # noqa: E402
-from pipelines.tridehaze.priors import scaled_step  # noqa: E402
 
 
 def base_runs(base: Path) -> list[tuple[str, str, Path]]:
@@ -45,10 +44,9 @@ def base_runs(base: Path) -> list[tuple[str, str, Path]]:
 
 
 def freeze_step(run: Path) -> int:
-    """The run's freeze step, whose checkpoint must exist (read in the main thread: the method
-    registry fills on first use)."""
-    cfg = load_config(run / "config.yml")
-    freeze = scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, cfg.max_steps)
+    """The run's freeze step, whose checkpoint must exist (checked for every run before any is
+    continued)."""
+    freeze = freeze_step_of(load_config(run / "config.yml"))
     if not checkpoint_path(run, freeze).is_file():
         raise SystemExit(f"{run}: no checkpoint at the freeze (step {freeze}); save every 750 steps")
     return freeze
@@ -61,16 +59,17 @@ def continue_run(run: Path, freeze: int, dest: Path, args: list[str]) -> Path:
         return result
     shutil.rmtree(dest, ignore_errors=True)
     shutil.copytree(run, dest, ignore=shutil.ignore_patterns("eval"))
-    for ckpt in (dest / "checkpoints").glob("step-*.ckpt"):
-        if int(ckpt.stem.split("-")[1]) > freeze:
+    keep = checkpoint_path(dest, freeze)
+    for ckpt in (dest / "checkpoints").glob(CHECKPOINT_GLOB):
+        if ckpt != keep:  # the freeze checkpoint becomes the newest
             ckpt.unlink()
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    log = dest.with_suffix(".log").open("w")
-    subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.train", "--resume", str(dest), *args],
-                   check=True, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
-    subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.eval", "--load-config", str(dest / "config.yml"),
-                    "--output-path", str(result), "--lpips", "off", "--no-images"],
-                   check=True, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    with dest.with_suffix(".log").open("w") as log:
+        subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.train", "--resume", str(dest), *args],
+                       check=True, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+        subprocess.run([sys.executable, "-m", "tridehaze_plugin.cli.eval", "--load-config",
+                        str(dest / "config.yml"), "--output-path", str(result), "--lpips", "off", "--no-images"],
+                       check=True, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
     return result
 
 

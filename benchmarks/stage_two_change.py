@@ -25,6 +25,7 @@ from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from sky_split import arm_of  # noqa: E402
 
 from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint  # noqa: E402
+from pipelines.engine.config import TrainerConfig  # noqa: E402
 from pipelines.engine.evaluate import evaluate  # noqa: E402
 from pipelines.engine.run_config import load_config  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -50,9 +51,14 @@ def _scores(config: Path, checkpoint: Path) -> dict:
     return {**headline(evaluate(run.pipeline, run.datamanager, "test")), "step": run.step}
 
 
+def freeze_step_of(cfg: TrainerConfig) -> int:
+    """The step at which a run with config ``cfg`` froze its medium."""
+    return scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, cfg.max_steps)
+
+
 def diagnose(config: Path) -> dict:
     cfg = load_config(config)
-    freeze = scaled_step(cfg.pipeline.freeze_step, cfg.pipeline.freeze_fraction, cfg.max_steps)
+    freeze = freeze_step_of(cfg)
     row: dict = {"run": str(config.parent), "scene": Path(str(cfg.dataset.data)).name, "seed": cfg.seed}
     row["freeze_step"] = freeze
     found = {"freeze": checkpoint_path(config.parent, freeze), "end": latest_checkpoint(config.parent)}
