@@ -28,7 +28,7 @@ if str(REPO) not in sys.path:
 
 from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from dcp_bound_split import light_along_rays  # noqa: E402
-from sky_split import arm_of  # noqa: E402
+from sky_split import arm_of, run_label  # noqa: E402
 
 from components.losses.dcp import dark_channel_bound, default_patch  # noqa: E402
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
@@ -116,7 +116,7 @@ def plot(rows: list[dict], path: Path) -> None:
     """Dense pixels: the model's T, the truth and the omega-0.95 bound per run."""
     grouped_bars(
         path,
-        [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows],
+        [run_label(r) for r in rows],
         [
             (label, [r[f"dense_{k}"] or 0.0 for r in rows])
             for label, k in (("model T", "model"), ("true T", "true"), ("own bound, omega 0.95", "own_095"))

@@ -31,7 +31,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
-from sky_split import arm_of  # noqa: E402
+from sky_split import arm_of, run_label  # noqa: E402
 
 from components.losses.dcp import dark_channel_bound, default_patch  # noqa: E402
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, REFERENCE_T_KEY, reference_map  # noqa: E402
@@ -136,7 +136,7 @@ def plot(rows: list[dict], path: Path) -> None:
     """T bias on tight and loose pixels per run."""
     grouped_bars(
         path,
-        [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows],
+        [run_label(r) for r in rows],
         [(f"{region} pixels", [r[f"{region}_bias"] or 0.0 for r in rows]) for region in REGIONS],
         "T error, model - true\n(< 0: too much haze)",
         zero_line=True,

@@ -118,6 +118,11 @@ def arm_of(run: str) -> str:
     return Path(run).name
 
 
+def run_label(row: dict) -> str:
+    """A plot's bar-group label for one diagnosed run: its arm, scene and seed."""
+    return f"{arm_of(row['run'])}\n{row['scene']} s{row['seed']}"
+
+
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | sky share | PSNR all / sky / surface, t0 off | the same, t0 "
@@ -140,7 +145,7 @@ def plot(rows: list[dict], path: Path) -> None:
         for k in ("sky", "surface")
         for t0 in ("t0=0", f"t0={T0:g}")
     ]
-    labels = [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows]
+    labels = [run_label(r) for r in rows]
     grouped_bars(path, labels, series, "restoration PSNR (dB)")
 
 

@@ -22,7 +22,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
-from sky_split import arm_of  # noqa: E402
+from sky_split import arm_of, run_label  # noqa: E402
 
 from pipelines.engine.checkpoint import checkpoint_path, latest_checkpoint  # noqa: E402
 from pipelines.engine.config import TrainerConfig  # noqa: E402
@@ -99,7 +99,7 @@ def markdown(rows: list[dict]) -> str:
 def plot(rows: list[dict], path: Path) -> None:
     grouped_bars(
         path,
-        [f"{arm_of(r['run'])}\n{r['scene']} s{r['seed']}" for r in rows],
+        [run_label(r) for r in rows],
         [(f"at the {s}", [r[f"{s}_psnr"] or 0.0 for r in rows]) for s in STAGES],
         "restoration PSNR (dB)",
     )
