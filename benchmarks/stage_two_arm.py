@@ -28,10 +28,22 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from bench_output import fmt  # noqa: E402
 from stage_two_change import freeze_step_of, headline  # noqa: E402
 
 from pipelines.engine.checkpoint import CHECKPOINT_GLOB, checkpoint_path  # noqa: E402
 from pipelines.engine.run_config import load_config  # noqa: E402
+
+
+def pair_line(row: dict) -> str:
+    """One printed pair: restoration, T and S MAE before -> after (``-`` where a dataset has no true
+    map: real photos carry no scattering)."""
+    b, c = row["base"], row["continued"]
+    cells = [
+        f"{row['seed']:7s} {row['scene']:20s} {b['psnr']:.2f} -> {c['psnr']:.2f} ({c['psnr'] - b['psnr']:+.2f})"
+    ]
+    cells += [f"{name} {fmt(b[k])} -> {fmt(c[k])}" for name, k in (("T MAE", "t_mae"), ("S MAE", "s_mae"))]
+    return "  ".join(cells)
 
 
 def base_runs(base: Path) -> list[tuple[str, str, Path]]:
@@ -99,9 +111,7 @@ def main() -> None:
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "pairs.json").write_text(json.dumps(rows, indent=2))
     for r in rows:
-        b, c = r["base"], r["continued"]
-        print(f"{r['seed']:7s} {r['scene']:20s} {b['psnr']:.2f} -> {c['psnr']:.2f} ({c['psnr'] - b['psnr']:+.2f})"
-              f"  T MAE {b['t_mae']:.3f} -> {c['t_mae']:.3f}  S MAE {b['s_mae']:.3f} -> {c['s_mae']:.3f}")  # fmt: skip
+        print(pair_line(r))
     for seed in sorted({r["seed"] for r in rows}):
         d = [r["continued"]["psnr"] - r["base"]["psnr"] for r in rows if r["seed"] == seed]
         print(f"{seed}: mean change {sum(d) / len(d):+.3f} dB over {len(d)} runs")

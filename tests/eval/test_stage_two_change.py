@@ -77,3 +77,22 @@ def test_a_run_continued_from_its_freeze_reproduces_itself(tmp_path):
             assert row["continued"] == row["base"]
         else:
             assert "stage_two_holds_haze: true" in (out / "seed42" / "courtyard" / "config.yml").read_text()
+
+
+def test_a_pair_without_a_true_scattering_map_prints():
+    """Real photos hazed by td-synth carry a true T but no true S: the pair prints ``-`` there (it
+    raised a TypeError after the runs, on the hazed real sets)."""
+    import sys
+
+    from tests.eval.diagnosis_script import REPO
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from stage_two_arm import pair_line
+
+    row = {
+        "seed": "seed7", "scene": "real-beer",
+        "base": {"psnr": 20.0, "t_mae": 0.1, "s_mae": None},
+        "continued": {"psnr": 20.5, "t_mae": 0.09, "s_mae": None},
+    }  # fmt: skip
+    line = pair_line(row)
+    assert "20.00 -> 20.50 (+0.50)" in line and "T MAE 0.100 -> 0.090" in line and "S MAE - -> -" in line
