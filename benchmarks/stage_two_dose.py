@@ -24,7 +24,7 @@ from bench_output import fmt, grouped_bars, publish  # noqa: E402
 def summarise(set_name: str, value: str, pairs: list[dict], tie: float) -> list[dict]:
     """One row per seed of an arm's pairs: the mean change and where it comes from."""
     rows = []
-    for seed in sorted({p["seed"] for p in pairs}, key=lambda s: (len(s), s)):
+    for seed in dict.fromkeys(p["seed"] for p in pairs):  # in the order the arm ran them
         deltas = sorted(
             (p["continued"]["psnr"] - p["base"]["psnr"], p["scene"]) for p in pairs if p["seed"] == seed
         )
@@ -64,7 +64,7 @@ def markdown(rows: list[dict], tie: float) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot(rows: list[dict], path: Path) -> None:
+def plot(rows: list[dict], path: Path, name: str = "value") -> None:
     """Mean change per set and seed, one bar per value."""
     groups = sorted({(r["set"], r["seed"]) for r in rows})
     values = sorted({r["value"] for r in rows}, key=lambda v: (len(v), v))
@@ -72,7 +72,7 @@ def plot(rows: list[dict], path: Path) -> None:
     grouped_bars(
         path,
         [f"{s}\n{seed}" for s, seed in groups],
-        [(f"value {v}", [by.get((s, seed, v), 0.0) for s, seed in groups]) for v in values],
+        [(f"{name} {v}", [by.get((s, seed, v), 0.0) for s, seed in groups]) for v in values],
         "mean restoration change (dB)",
         zero_line=True,
     )
@@ -82,6 +82,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--arms", nargs="+", required=True, help="SET:VALUE=PAIRS_JSON, one per arm")
     ap.add_argument("--output", type=Path, required=True, help="output stem: writes .json, .md, .png")
+    ap.add_argument("--name", default="value", help="what VALUE sets, for the plot's legend (t_min)")
     ap.add_argument("--tie", type=float, default=0.02, help="changes within this many dB count as ties")
     args = ap.parse_args()
     rows = []
@@ -91,8 +92,19 @@ def main() -> None:
         if not sep or not colon or not path:
             raise SystemExit(f"--arms {arm!r}: expected SET:VALUE=PAIRS_JSON")
         rows += summarise(set_name, value, json.loads(Path(path).read_text()), args.tie)
-    how = "`python benchmarks/stage_two_dose.py --arms " + " ".join(args.arms) + f" --output {args.output}`"
-    publish(args.output, rows, "Stage II arms by setting", how, markdown(rows, args.tie), plot)
+    how = (
+        "`python benchmarks/stage_two_dose.py --arms "
+        + " ".join(args.arms)
+        + f" --name {args.name} --output {args.output}`"
+    )
+    publish(
+        args.output,
+        rows,
+        "Stage II arms by setting",
+        how,
+        markdown(rows, args.tie),
+        lambda r, p: plot(r, p, args.name),
+    )
 
 
 if __name__ == "__main__":
