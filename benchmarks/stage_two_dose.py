@@ -91,6 +91,8 @@ def main() -> None:
         set_name, colon, value = name.partition(":")
         if not sep or not colon or not path:
             raise SystemExit(f"--arms {arm!r}: expected SET:VALUE=PAIRS_JSON")
+        if not Path(path).is_file():
+            raise SystemExit(f"--arms {arm!r}: no file {path} (stage_two_arm.py writes OUT/pairs.json)")
         rows += summarise(set_name, value, json.loads(Path(path).read_text()), args.tie)
     how = (
         "`python benchmarks/stage_two_dose.py --arms "

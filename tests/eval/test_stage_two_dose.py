@@ -49,3 +49,17 @@ def test_a_malformed_arm_is_refused(tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode != 0 and "expected SET:VALUE=PAIRS_JSON" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_a_missing_pairs_file_is_refused(tmp_path):
+    cmd = [
+        sys.executable,
+        str(SCRIPT),
+        "--arms",
+        f"bench:0.3={tmp_path / 'none.json'}",
+        "--output",
+        str(tmp_path / "o"),
+    ]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode != 0 and "no file" in done.stderr and "pairs.json" in done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "o.json").exists()
