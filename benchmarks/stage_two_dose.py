@@ -65,9 +65,9 @@ def markdown(rows: list[dict], tie: float) -> str:
 
 
 def plot(rows: list[dict], path: Path, name: str = "value") -> None:
-    """Mean change per set and seed, one bar per value."""
-    groups = sorted({(r["set"], r["seed"]) for r in rows})
-    values = sorted({r["value"] for r in rows}, key=lambda v: (len(v), v))
+    """Mean change per set and seed, one bar per value, both in the order of the table."""
+    groups = list(dict.fromkeys((r["set"], r["seed"]) for r in rows))
+    values = list(dict.fromkeys(r["value"] for r in rows))
     by = {(r["set"], r["seed"], r["value"]): r["mean_change"] for r in rows}
     grouped_bars(
         path,
