@@ -90,7 +90,7 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, device, seed=0)
     pipe = cfg.pipeline.setup(dm, seed=0, max_steps=cfg.max_steps)
-    opt = Optimizers(pipe.param_groups(), cfg.optimizer, cfg.max_steps)
+    opt = Optimizers(pipe.param_groups(), cfg.optimizer, cfg.max_steps, eps=pipe.adam_eps())
     return pipe, opt
 
 

@@ -20,7 +20,14 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 from components.gaussians.sh import eval_sh, num_sh_bases
-from tridehaze_plugin.config import ComponentConfig, NonNegative, Range, RegistryChoice, check_numbers
+from tridehaze_plugin.config import (
+    ComponentConfig,
+    NonNegative,
+    Positive,
+    Range,
+    RegistryChoice,
+    check_numbers,
+)
 from tridehaze_plugin.errors import ConfigError
 from tridehaze_plugin.registry import REGISTRY
 
@@ -145,6 +152,12 @@ class MediumConfig(ComponentConfig):
     limits the second. At 0.003 on ``tri-dehaze``, paired on the benchmark: -0.20 / +0.07 dB
     (seeds 42 / 7; room-uniform up, field-sunlit -2.0 at one seed) and the field no smoother
     (docs/results/medium_recovery.md, session 52)."""
+    feature_eps: Annotated[float, Positive] | None = None
+    """Adam's epsilon for the grid backends' features (triplane, voxel); None: the optimizer's
+    (1e-15). With a tiny epsilon Adam moves a cell about as far for a gradient of 1e-7 as for one
+    of 1e-4, so the many cells that the photos barely constrain (near the cameras, in front of the
+    surfaces) wander as fast as the ones they pin. An epsilon near the typical gradient size slows
+    only the weakly held cells (docs/results/medium_recovery.md, session 55)."""
     init_beta: Annotated[float, NonNegative] = 0.1
     """Initial extinction (1 / scene unit) everywhere; replaced by a dark-channel estimate when the
     pipeline initialises the medium from data."""
@@ -238,6 +251,11 @@ class MediumField(nn.Module):
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Trainable tensors by name with learning rates (names prefixed ``medium.``)."""
+        return {}
+
+    def adam_eps(self) -> dict[str, float]:
+        """Adam epsilon per parameter group where it differs from the optimizer's (by the names of
+        :meth:`param_groups`)."""
         return {}
 
     def regularizer(self) -> Tensor | None:

@@ -89,6 +89,10 @@ class GridField(HeadedField):
             return self.config.feature_lr
         return super()._lr(name)
 
+    def adam_eps(self) -> dict[str, float]:
+        eps = self.config.feature_eps
+        return {} if eps is None else {"medium.features": eps}
+
     def grid(self) -> Tensor:
         """The features as the lookup sees them: low-passed while a band limit is set."""
         return blur_grid(self.features, float(self.band_sigma))

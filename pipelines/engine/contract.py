@@ -78,6 +78,11 @@ class Pipeline(nn.Module, ABC):
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Trainable parameters by name with their base learning rates."""
 
+    def adam_eps(self) -> dict[str, float]:
+        """Adam epsilon per parameter group (names of :meth:`param_groups`) where it differs from
+        the optimizer config's; none by default."""
+        return {}
+
     def after_backward(self, step: int) -> None:  # noqa: B027 - optional hook
         """Hook after ``loss.backward()`` (e.g. collect densification statistics)."""
 

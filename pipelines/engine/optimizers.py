@@ -25,13 +25,23 @@ class Optimizers:
     """Named Adam optimizers with an exponential schedule on the means."""
 
     def __init__(
-        self, groups: dict[str, tuple[nn.Parameter, float]], config: OptimizerConfig, max_steps: int
+        self,
+        groups: dict[str, tuple[nn.Parameter, float]],
+        config: OptimizerConfig,
+        max_steps: int,
+        eps: dict[str, float] | None = None,
     ):
+        """``eps``: Adam epsilon by group name where a component asks for its own."""
         self.config = config
         self.max_steps = max(max_steps, 1)
         self.base_lr = {name: lr for name, (_, lr) in groups.items()}
+        unknown = sorted(set(eps or {}) - set(groups))
+        if unknown:
+            raise ValueError(f"Adam epsilon given for unknown parameter groups {unknown}")
         self.optimizers: dict[str, torch.optim.Optimizer] = {
-            name: torch.optim.Adam([{"params": [p], "lr": lr, "name": name}], eps=config.eps)
+            name: torch.optim.Adam(
+                [{"params": [p], "lr": lr, "name": name}], eps=(eps or {}).get(name, config.eps)
+            )
             for name, (p, lr) in groups.items()
         }
 

@@ -191,7 +191,9 @@ class Trainer:
         if self.resume is not None:
             self.run_dir = self.resume
             self._restore()
-        self.optimizers = Optimizers(self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps)
+        self.optimizers = Optimizers(
+            self.pipeline.param_groups(), cfg.optimizer, cfg.max_steps, eps=self.pipeline.adam_eps()
+        )
         self.stopper = (
             EarlyStopper(cfg.early_stop, self.datamanager, cfg.max_steps) if cfg.early_stop.enabled else None
         )

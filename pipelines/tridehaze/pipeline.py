@@ -36,6 +36,7 @@ from components.medium.compositing import (
 from components.rasterizers.base import RasterizeOutput, RasterizerConfig
 from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepResult
 from pipelines.engine.datamanager import DataManager
+from pipelines.engine.medium_recovery import reference_depth
 from pipelines.engine.metrics import psnr
 from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
@@ -53,6 +54,7 @@ from pipelines.tridehaze.priors import (
     visible_points,
 )
 from pipelines.tridehaze.probe import probe_haze
+from pipelines.tridehaze.reference_start import fit_to_reference
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.warmup import warmup_depths
 from tridehaze_plugin.config import NonNegative, Positive, Range, RegistryChoice, retire_options
@@ -236,6 +238,16 @@ class GaussianPipelineConfig(PipelineConfig):
     frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
     0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py). Measured
     -0.03 / -0.03 dB (seeds 42 / 7), the drift unchanged: it is not the composite's gradient (session 53)."""
+    medium_start: Literal["dark-channel", "reference"] = "dark-channel"
+    """Where the trainable medium starts: the dark channel's estimate, or ``reference`` (a diagnosis
+    on td-synth data, never a method): fitted to the generator's true medium before training, to
+    see whether training keeps it (pipelines/tridehaze/reference_start.py)."""
+    march_to: Literal["rendered", "true-depth"] = "rendered"
+    """Where the training rays' march through the medium ends: the Gaussians' rendered depth, or
+    ``true-depth`` (a diagnosis on td-synth data, never a method): each training view's true depth
+    (clamped to the far bound; no gradient to the Gaussians' depth from the composite), to see what
+    the rendered depth's errors do to the fitted medium. Rendering and evaluation march to the
+    rendered depth either way."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
@@ -454,6 +466,8 @@ class GaussianPipeline(Pipeline):
         )
         self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
         colors = self._initialize_medium(dcp, plan)
+        if config.medium_start == "reference" and training and self.medium.has_medium:
+            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed))
         points, colors = self._with_sky_shell(scene.points, colors, bounds)
         points, colors = self._with_ground_seeds(points, colors, scene.points)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
@@ -473,6 +487,7 @@ class GaussianPipeline(Pipeline):
         self.depth_source = plan.depth_source
         self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
+        self._true_depth: dict[int, Tensor | None] = {}  # march_to true-depth: the maps read so far
         self._dens_weight: Tensor | None = None
 
     def _build_medium(self, bounds: FieldBounds) -> MediumField:
@@ -606,7 +621,10 @@ class GaussianPipeline(Pipeline):
         depth = out.depth[0]  # [H, W, 1]
         metrics: dict[str, Tensor] = {}  # detached scalars; read by the trainer in one transfer
         with record_function("td.medium"):
-            med = self._medium(cam, out, hold=stage == 2 and cfg.stage_two_holds_haze)
+            if cfg.march_to == "true-depth":
+                med = self._medium_to_true_depth(idx, cam, out)
+            else:
+                med = self._medium(cam, out, hold=stage == 2 and cfg.stage_two_holds_haze)
         with record_function("td.composite+loss"):
             hazy = clean if med is None else self._training_composite(clean, out, med, bg, stage)
             loss, terms = self.loss_fn(hazy, target)
@@ -793,6 +811,9 @@ class GaussianPipeline(Pipeline):
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         return {**self.model.param_groups(), **self.medium.param_groups()}
 
+    def adam_eps(self) -> dict[str, float]:
+        return self.medium.adam_eps()
+
     def after_backward(self, step: int) -> None:
         if self._last is not None:
             self.densifier.collect(self._last, self._dens_weight)
@@ -816,6 +837,24 @@ class GaussianPipeline(Pipeline):
         if hold:
             depth, alpha = depth.detach(), alpha.detach()
         return self.medium.render_view(self.compositor, camera, depth, alpha, self.model, self.rasterizer)
+
+    def _medium_to_true_depth(self, idx: int, camera: Cameras, out: RasterizeOutput) -> MediumRender | None:
+        """T and S of training view ``idx`` marched to its true depth (``march_to true-depth``)."""
+        if not self.medium.has_medium:
+            return None
+        if idx not in self._true_depth:
+            self._true_depth[idx] = reference_depth(self.datamanager, idx, tuple(out.depth.shape[1:3]))
+        z = self._true_depth[idx]  # [H, W, 1]
+        if z is None:
+            raise ConfigError(
+                "--pipeline.march-to true-depth needs the dataset's true depth maps",
+                where=str(self.datamanager.scene.root),
+                fix="use it on a dataset written by `td-synth scene`",
+            )
+        far = self.compositor.far_bound(self.medium)
+        z = z.to(out.depth).nan_to_num(far, far, far).clamp(1e-6, far)
+        ones = torch.ones_like(z)
+        return self.medium.render_view(self.compositor, camera, z, ones, self.model, self.rasterizer)
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:

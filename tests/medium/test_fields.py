@@ -456,3 +456,13 @@ def test_feature_lr_applies_to_grid_features_only() -> None:
         for k, (_, lr) in _make("constant", torch.device("cpu"), feature_lr=0.003).param_groups().items()
     }
     assert const["medium.features"] == 0.01  # one global vector, not a grid
+
+
+def test_feature_eps_applies_to_grid_features_only() -> None:
+    for backend in ("triplane", "voxel"):
+        field = _make(backend, torch.device("cpu"), feature_eps=1e-6)
+        assert field.adam_eps() == {"medium.features": 1e-6}
+        assert "medium.features" in field.param_groups()  # the name the optimizer knows
+        assert _make(backend, torch.device("cpu")).adam_eps() == {}  # None: the optimizer's own
+    for backend in ("constant", "mlp"):
+        assert _make(backend, torch.device("cpu"), feature_eps=1e-6).adam_eps() == {}

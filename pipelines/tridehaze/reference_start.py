@@ -1,0 +1,61 @@
+"""Start a trainable medium at the generator's true one (a diagnosis on td-synth data, never a
+method): does training keep the true medium, or does it leave it for the one it ends at from the
+dark channel's start? The first says the objective is right and the start is the lever; the
+second says the losses prefer a wrong medium (docs/results/medium_recovery.md, session 55)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+from torch import Tensor
+
+from components.data.scene import SceneTransform
+from components.medium.base import MediumField
+from components.medium.reference import ReferenceField
+
+STEPS = 1500
+"""Adam steps of the fit (enough for a relative extinction error of a few per cent on td-synth media)."""
+POINTS = 8192
+"""Random box points (and directions) per step."""
+
+
+def fit_to_reference(field: MediumField, root, transform: SceneTransform, seed: int = 0) -> dict[str, float]:
+    """Fit ``field``'s extinction (in log) and light to the generator's medium of the dataset at
+    ``root``, at uniform points of the field's box with uniform directions; returns the fit's
+    final relative extinction error and light error (means over a fresh sample)."""
+    truth = ReferenceField(
+        replace(field.config, backend="reference", reference_scale=(1.0, 1.0)), field.bounds
+    )
+    truth.bind_scene(root, transform)
+    gen = torch.Generator().manual_seed(seed)  # the run's own random stream is left as it was
+    device = field.bounds_center.device
+    params = [p for _, (p, _) in field.param_groups().items()]
+    opt = torch.optim.Adam(params, lr=0.01)
+    for _ in range(STEPS):
+        x, d = _sample(field, gen, device)
+        with torch.no_grad():
+            want = truth(x, d)
+        got = field(x, d)
+        loss = _log_error(got.beta, want.beta).square().mean() + (got.light - want.light).square().mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    x, d = _sample(field, gen, device)
+    with torch.no_grad():
+        got, want = field(x, d), truth(x, d)
+        beta_err = float(_log_error(got.beta, want.beta).abs().mean())
+        light_err = float((got.light - want.light).abs().mean())
+    return {"reference_start_log_beta_mae": beta_err, "reference_start_light_mae": light_err}
+
+
+def _sample(field: MediumField, gen: torch.Generator, device: torch.device) -> tuple[Tensor, Tensor]:
+    """Uniform points of the field's box [P, 3] and uniform unit directions [P, 3]."""
+    u = torch.rand(POINTS, 3, generator=gen) * 2.0 - 1.0
+    x = field.bounds_center.cpu() + u * field.bounds_half.cpu()
+    d = torch.nn.functional.normalize(torch.randn(POINTS, 3, generator=gen), dim=-1)
+    return x.to(device), d.to(device)
+
+
+def _log_error(beta: Tensor, target: Tensor) -> Tensor:
+    return torch.log(beta.clamp_min(1e-6)) - torch.log(target.clamp_min(1e-6))
