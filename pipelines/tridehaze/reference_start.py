@@ -6,6 +6,7 @@ second says the losses prefer a wrong medium (docs/results/medium_recovery.md, s
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -20,7 +21,9 @@ POINTS = 8192
 """Random box points (and directions) per step."""
 
 
-def fit_to_reference(field: MediumField, root, transform: SceneTransform, seed: int = 0) -> dict[str, float]:
+def fit_to_reference(
+    field: MediumField, root: Path, transform: SceneTransform, seed: int = 0
+) -> dict[str, float]:
     """Fit ``field``'s extinction (in log) and light to the generator's medium of the dataset at
     ``root``, at uniform points of the field's box with uniform directions; returns the fit's
     final relative extinction error and light error (means over a fresh sample)."""
