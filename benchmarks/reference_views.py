@@ -5,14 +5,14 @@ the generator's own medium beside the trained one (medium_along_rays, medium_cap
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from components.data.cameras import Cameras
 from components.medium.base import MediumField
-from components.medium.reference import ReferenceField
+from components.medium.reference import true_medium
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_depth, reference_map
 
@@ -46,12 +46,7 @@ def reference_views(dm: DataManager, indices: Iterable[int] | None = None) -> It
 def true_medium_field(pipe, dm: DataManager) -> MediumField:
     """The generator's own medium (extinction and light at scale 1) in the run's frame and in its
     trained field's box, for comparing the two at the same points."""
-    trained = pipe.medium_field()
-    truth = ReferenceField(
-        replace(pipe.config.medium, backend="reference", reference_scale=(1.0, 1.0)), trained.bounds
-    )
-    truth.bind_scene(dm.scene.root, dm.scene.transform)
-    return truth
+    return true_medium(pipe.config.medium, pipe.medium_field().bounds, dm.scene.root, dm.scene.transform)
 
 
 def march_samples(field, origin: Tensor, dirs: Tensor, z: Tensor, samples: int) -> tuple[Tensor, Tensor]:

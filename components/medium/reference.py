@@ -11,13 +11,14 @@ for such measurements.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from components.data.scene import SceneTransform
-from components.medium.base import MediumField, MediumSample
+from components.medium.base import FieldBounds, MediumConfig, MediumField, MediumSample
 from components.synth.layouts import make_layout
 from components.synth.medium import Medium, make_medium
 from tridehaze_plugin.errors import ConfigError
@@ -69,3 +70,14 @@ class ReferenceField(MediumField):
 
 
 register("medium", "reference", ReferenceField)
+
+
+def true_medium(
+    config: MediumConfig, bounds: FieldBounds, root: Path, transform: SceneTransform
+) -> ReferenceField:
+    """The generator's medium of the dataset at ``root`` (extinction and light at scale 1) in
+    ``bounds`` of the run's frame: beside a trained field of ``config``, to compare or fit the two
+    at the same points."""
+    truth = ReferenceField(replace(config, backend="reference", reference_scale=(1.0, 1.0)), bounds)
+    truth.bind_scene(root, transform)
+    return truth

@@ -35,13 +35,12 @@ class Optimizers:
         self.config = config
         self.max_steps = max(max_steps, 1)
         self.base_lr = {name: lr for name, (_, lr) in groups.items()}
-        unknown = sorted(set(eps or {}) - set(groups))
+        eps = eps or {}
+        unknown = sorted(set(eps) - set(groups))
         if unknown:
             raise ValueError(f"Adam epsilon given for unknown parameter groups {unknown}")
         self.optimizers: dict[str, torch.optim.Optimizer] = {
-            name: torch.optim.Adam(
-                [{"params": [p], "lr": lr, "name": name}], eps=(eps or {}).get(name, config.eps)
-            )
+            name: torch.optim.Adam([{"params": [p], "lr": lr, "name": name}], eps=eps.get(name, config.eps))
             for name, (p, lr) in groups.items()
         }
 

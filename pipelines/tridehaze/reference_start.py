@@ -5,7 +5,6 @@ second says the losses prefer a wrong medium (docs/results/medium_recovery.md, s
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -13,7 +12,7 @@ from torch import Tensor
 
 from components.data.scene import SceneTransform
 from components.medium.base import MediumField
-from components.medium.reference import ReferenceField
+from components.medium.reference import true_medium
 
 STEPS = 1500
 """Adam steps of the fit (enough for a relative extinction error of a few per cent on td-synth media)."""
@@ -27,13 +26,10 @@ def fit_to_reference(
     """Fit ``field``'s extinction (in log) and light to the generator's medium of the dataset at
     ``root``, at uniform points of the field's box with uniform directions; returns the fit's
     final relative extinction error and light error (means over a fresh sample)."""
-    truth = ReferenceField(
-        replace(field.config, backend="reference", reference_scale=(1.0, 1.0)), field.bounds
-    )
-    truth.bind_scene(root, transform)
+    truth = true_medium(field.config, field.bounds, root, transform)
     gen = torch.Generator().manual_seed(seed)  # the run's own random stream is left as it was
     device = field.bounds_center.device
-    params = [p for _, (p, _) in field.param_groups().items()]
+    params = [p for p, _ in field.param_groups().values()]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(STEPS):
         x, d = _sample(field, gen, device)

@@ -12,7 +12,7 @@ import pytest
 import torch
 from rich.console import Console
 
-from components.medium.reference import ReferenceField
+from components.medium.reference import true_medium
 from pipelines.engine.medium_recovery import reference_depth
 from pipelines.engine.trainer import Trainer
 from tests.tiny_scenes import tiny_hazy_scene
@@ -41,8 +41,7 @@ def _trainer(data: Path, out: Path, *extra: str) -> Trainer:
 
 
 def _log_beta_error(field, data: Path, trainer: Trainer) -> float:
-    truth = ReferenceField(field.config, field.bounds)
-    truth.bind_scene(data, trainer.datamanager.scene.transform)
+    truth = true_medium(field.config, field.bounds, data, trainer.datamanager.scene.transform)
     gen = torch.Generator().manual_seed(1)
     x = field.bounds_center + (torch.rand(2048, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
     d = torch.nn.functional.normalize(torch.randn(2048, 3, generator=gen), dim=-1)  # [P, 3]
