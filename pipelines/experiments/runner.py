@@ -107,7 +107,7 @@ class AblationRunner:
             "overrides": list(job.variant.overrides),
             "max_steps": self.steps(job),
             "seed": o.seed,
-            "extra": list(o.extra),
+            "extra": self.extra_args(job),
             "code": code_fingerprint(),
         }
 
@@ -203,8 +203,16 @@ class AblationRunner:
             *train, *v.train_args(), "--data", str(job.scene),
             "--output-dir", str(o.output_dir / "runs"), "--timestamp", v.name,
             "--max-steps", str(steps), "--seed", str(o.seed), "--threads", str(o.threads),
-            "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *o.extra,
+            "--no-eval-at-end", "--steps-per-save", str(max(steps // 4, 1)), *self.extra_args(job),
         ]  # fmt: skip
+
+    def extra_args(self, job: Job) -> list[str]:
+        """The extra td-train arguments of ``job``, with ``{scene}`` and ``{seed}`` filled in (so one
+        sweep can give each run, say, its own checkpoint of an earlier sweep)."""
+        return [
+            a.replace("{scene}", job.scene.name).replace("{seed}", str(self.opts.seed))
+            for a in self.opts.extra
+        ]
 
     def _result(
         self, job: Job, rd: Path, report: dict, train_s: float, wall_s: float, train_cpu: float

@@ -9,6 +9,7 @@ hazy renders coincide; every ablation is a field of this config (docs/medium.md)
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Annotated, Literal
 
 import torch
@@ -41,6 +42,7 @@ from pipelines.engine.metrics import psnr
 from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
 from pipelines.tridehaze.light_isotropy import LightIsotropy
+from pipelines.tridehaze.medium_transplant import load_medium
 from pipelines.tridehaze.priors import (
     ViewPrior,
     build_view_priors,
@@ -248,6 +250,19 @@ class GaussianPipelineConfig(PipelineConfig):
     (clamped to the far bound; no gradient to the Gaussians' depth from the composite), to see what
     the rendered depth's errors do to the fitted medium. Rendering and evaluation march to the
     rendered depth either way."""
+    medium_from: Path | None = None
+    """Start from, and hold for the whole run, the medium of this checkpoint of an earlier run on
+    the same data (same method and medium backend): the scene is fitted afresh through it, the
+    light is not recoloured again (pipelines/tridehaze/medium_transplant.py). None: the medium
+    starts from the dark channel's estimate and learns in Stage I."""
+    medium_learns_from: Literal["all", "true-depth"] = "all"
+    """Which training pixels the medium's photometric gradient comes from: all, or ``true-depth`` (a
+    diagnosis on td-synth data, never a method): only those whose rendered end depth is within
+    ``medium_trust_tolerance`` of the true depth (clamped to the far bound), so rays that stop
+    short or overshoot cannot tilt the medium. The composite and the Gaussians' gradient are
+    unchanged; the medium's priors still see every pixel."""
+    medium_trust_tolerance: Annotated[float, Range(0.0, 1.0)] = 0.05
+    """Relative end-depth error under which ``medium_learns_from true-depth`` trusts a pixel."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
@@ -468,6 +483,8 @@ class GaussianPipeline(Pipeline):
         colors = self._initialize_medium(dcp, plan)
         if config.medium_start == "reference" and training and self.medium.has_medium:
             self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed))
+        if config.medium_from is not None and self.medium.has_medium:
+            self.init_info["medium_from_step"] = load_medium(self.medium, config.medium_from)
         points, colors = self._with_sky_shell(scene.points, colors, bounds)
         points, colors = self._with_ground_seeds(points, colors, scene.points)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
@@ -477,7 +494,8 @@ class GaussianPipeline(Pipeline):
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
         self.light_isotropy = self._light_verdict(max_steps).to(datamanager.device)
         self.light_colour = LightColourFit(
-            config.light_colour_fit and self.medium.has_medium, self.freeze_step
+            config.light_colour_fit and self.medium.has_medium and config.medium_from is None,
+            self.freeze_step,
         )
         self._photometric: Tensor | None = None
         self.register_buffer(
@@ -591,7 +609,7 @@ class GaussianPipeline(Pipeline):
         return coarse_to_fine_sigma(step, self.hold_steps, end, cfg.medium_coarse_to_fine)
 
     def _medium_trainable(self, step: int) -> bool:
-        return self.stage_at(step) == 1 and step >= self.hold_steps
+        return self.stage_at(step) == 1 and step >= self.hold_steps and self.config.medium_from is None
 
     # ----------------------------------------------------------------------------- training
     def training_target(self, idx: int) -> Tensor:
@@ -625,6 +643,8 @@ class GaussianPipeline(Pipeline):
                 med = self._medium_to_true_depth(idx, cam, out)
             else:
                 med = self._medium(cam, out, hold=stage == 2 and cfg.stage_two_holds_haze)
+            if med is not None and cfg.medium_learns_from == "true-depth":
+                med, metrics["trusted_share"] = self._trusted_medium(idx, med)
         with record_function("td.composite+loss"):
             hazy = clean if med is None else self._training_composite(clean, out, med, bg, stage)
             loss, terms = self.loss_fn(hazy, target)
@@ -842,19 +862,36 @@ class GaussianPipeline(Pipeline):
         """T and S of training view ``idx`` marched to its true depth (``march_to true-depth``)."""
         if not self.medium.has_medium:
             return None
-        if idx not in self._true_depth:
-            self._true_depth[idx] = reference_depth(self.datamanager, idx, tuple(out.depth.shape[1:3]))
-        z = self._true_depth[idx]  # [H, W, 1]
-        if z is None:
-            raise ConfigError(
-                "--pipeline.march-to true-depth needs the dataset's true depth maps",
-                where=str(self.datamanager.scene.root),
-                fix="use it on a dataset written by `td-synth scene`",
-            )
-        far = self.compositor.far_bound(self.medium)
-        z = z.to(out.depth).nan_to_num(far, far, far).clamp(1e-6, far)
+        z = self._true_depth_of(idx, tuple(out.depth.shape[1:3])).to(out.depth)  # [H, W, 1]
         ones = torch.ones_like(z)
         return self.medium.render_view(self.compositor, camera, z, ones, self.model, self.rasterizer)
+
+    def _true_depth_of(self, idx: int, size: tuple[int, int]) -> Tensor:
+        """Training view ``idx``'s true z-depth [H, W, 1], clamped to the far bound (diagnoses)."""
+        if idx not in self._true_depth:
+            self._true_depth[idx] = reference_depth(self.datamanager, idx, size)
+        z = self._true_depth[idx]
+        if z is None:
+            raise ConfigError(
+                "--pipeline.march-to true-depth and --pipeline.medium-learns-from true-depth need "
+                "the dataset's true depth maps",
+                where=str(self.datamanager.scene.root),
+                fix="use them on a dataset written by `td-synth scene`",
+            )
+        far = self.compositor.far_bound(self.medium)
+        return z.nan_to_num(far, far, far).clamp(1e-6, far)
+
+    def _trusted_medium(self, idx: int, med: MediumRender) -> tuple[MediumRender, Tensor]:
+        """``med`` with its T and S detached wherever the rendered end depth is off the true depth by
+        more than ``medium_trust_tolerance`` (``medium_learns_from true-depth``), and the share of
+        pixels trusted."""
+        z = self._true_depth_of(idx, tuple(med.end_depth.shape[:2])).to(med.end_depth)  # [H, W, 1]
+        ok = ((med.end_depth.detach() - z).abs() <= self.config.medium_trust_tolerance * z).to(z)
+        T, S = med.transmittance, med.scattering
+        trusted = replace(
+            med, transmittance=ok * T + (1 - ok) * T.detach(), scattering=ok * S + (1 - ok) * S.detach()
+        )
+        return trusted, ok.mean()
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:

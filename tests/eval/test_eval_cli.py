@@ -160,6 +160,23 @@ def test_resume_keeps_the_variants_own_step_count(tmp_path):
     assert "--resume" not in cmd and not rd.exists() and cmd[cmd.index("--max-steps") + 1] == "1000"
 
 
+def test_extra_arguments_name_each_runs_scene_and_seed(tmp_path):
+    """``{scene}`` and ``{seed}`` in the extra td-train arguments become each run's own, in the
+    command and in the signature that decides reuse (two scenes' runs differ)."""
+    from pipelines.experiments.ablation import Variant
+    from pipelines.experiments.runner import AblationRunner, Job, RunnerOptions
+
+    extra = ("--pipeline.medium-from", "base/seed{seed}/runs/{scene}/last.ckpt")
+    runner = AblationRunner(RunnerOptions(output_dir=tmp_path, max_steps=100, seed=7, extra=extra))
+    a, b = (Job(tmp_path / name, Variant("v", "tri-dehaze")) for name in ("street", "room"))
+    cmd = runner._train_command(a, runner.run_dir(a))
+    assert cmd[-2:] == ["--pipeline.medium-from", "base/seed7/runs/street/last.ckpt"], cmd
+    assert runner.signature(a)["extra"][1] == "base/seed7/runs/street/last.ckpt"
+    assert runner.signature(a)["extra"] != runner.signature(b)["extra"]
+    plain = AblationRunner(RunnerOptions(output_dir=tmp_path, max_steps=100, extra=("--x", "1")))
+    assert plain.signature(a)["extra"] == ["--x", "1"]  # without placeholders: as given
+
+
 @pytest.mark.parametrize("flag", ["--seed", "--max-steps", "--threads", "--seed=7"])
 def test_a_variant_cannot_set_a_flag_the_runner_overrules(flag, tmp_path):
     """A variant's ``--seed 7`` used to be overruled silently by the runner's own ``--seed 42``

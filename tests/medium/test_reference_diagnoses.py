@@ -1,6 +1,8 @@
-"""Two diagnoses on td-synth data that read the generator's answer (never methods):
-``--pipeline.medium-start reference`` starts the trainable medium fitted to the true medium, and
-``--pipeline.march-to true-depth`` ends the training rays' march at the true depth."""
+"""Three diagnoses on td-synth data that read the generator's answer (never methods):
+``--pipeline.medium-start reference`` starts the trainable medium fitted to the true medium,
+``--pipeline.march-to true-depth`` ends the training rays' march at the true depth, and
+``--pipeline.medium-learns-from true-depth`` lets the medium learn only from pixels whose rendered
+depth is right."""
 
 from __future__ import annotations
 
@@ -85,3 +87,25 @@ def test_march_to_true_depth_needs_the_maps(scene, tmp_path):
     trainer = _trainer(copy, tmp_path / "d", "--pipeline.march-to", "true-depth")
     with pytest.raises(ConfigError, match="true depth maps"):
         trainer.train()
+
+
+def test_medium_learns_only_from_pixels_at_the_true_depth(scene, tmp_path):
+    trainer = _trainer(scene, tmp_path / "e", "--pipeline.medium-learns-from", "true-depth")
+    pipe, dm = trainer.pipeline, trainer.datamanager
+    idx = list(dm.train_indices)[0]
+    cam = dm.camera(idx)
+    med = pipe._medium(cam, pipe._rasterize(cam, None, pipe.background))
+    trusted, share = pipe._trusted_medium(idx, med)
+    torch.testing.assert_close(trusted.transmittance, med.transmittance)  # the forward pass is unchanged
+    torch.testing.assert_close(trusted.scattering, med.scattering)
+    z = reference_depth(dm, idx, tuple(med.end_depth.shape[:2])).clamp_max(
+        pipe.compositor.far_bound(pipe.medium)
+    )
+    want = ((med.end_depth.detach() - z).abs() <= 0.05 * z).float()  # [H, W, 1]
+    assert 0.0 < float(want.mean()) < 1.0, "the tiny scene must have both kinds of pixel"
+    (grad_t,) = torch.autograd.grad(trusted.transmittance.sum(), med.transmittance, retain_graph=True)
+    torch.testing.assert_close(grad_t, want)  # the gradient passes the trusted pixels only
+    (grad_s,) = torch.autograd.grad(trusted.scattering.sum(), med.scattering)
+    torch.testing.assert_close(grad_s, want.expand_as(grad_s))
+    assert float(share) == pytest.approx(float(want.mean()))
+    trainer.train()  # and trains

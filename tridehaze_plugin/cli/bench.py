@@ -73,7 +73,8 @@ class TradeoffArgs(SweepExecutorArgs):
     lpips: Literal["auto", "on", "off"] = "auto"
     """LPIPS in td-eval."""
     train_args: str = ""
-    """Extra td-train arguments for every run (``--train-args="..."``)."""
+    """Extra td-train arguments for every run (``--train-args="..."``); ``{scene}`` and ``{seed}``
+    in them stand for each run's scene name and seed."""
     dry_run: bool = False
     """List the runs without running them."""
 
@@ -319,7 +320,9 @@ class RestorationArgs:
     lpips: Literal["auto", "on", "off"] = "auto"
     """LPIPS in the evaluation."""
     train_args: str = ""
-    """Extra td-train arguments for every run (``--train-args="..."``): the knob under test."""
+    """Extra td-train arguments for every run (``--train-args="..."``): the knob under test.
+    ``{scene}`` and ``{seed}`` in them stand for each run's scene name and seed (for example a
+    per-run checkpoint of an earlier benchmark: ``--pipeline.medium-from OUT/seed{seed}/runs/{scene}/...``)."""
 
 
 def restoration(args: RestorationArgs) -> None:

@@ -1,0 +1,41 @@
+"""Start from, and hold, the medium of another run's checkpoint (``--pipeline.medium-from``).
+
+A diagnosis first: the scene is fitted again, from its seed points, through the medium a first run
+settled on, so what the medium's own error costs is told apart from what the joint fit did to the
+Gaussians while the medium moved (docs/results/medium_recovery.md, session 56)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from torch import nn
+
+from pipelines.engine.checkpoint import load_checkpoint
+from tridehaze_plugin.errors import ConfigError
+
+PREFIX = "medium."
+"""The medium's keys in a pipeline's state dict."""
+
+
+def load_medium(field: nn.Module, path: Path) -> int:
+    """Load the medium's parameters and buffers from the checkpoint at ``path`` into ``field``;
+    returns the checkpoint's step. The two must be the same backend and shape (the same method
+    and dataset, so the same box)."""
+    payload = load_checkpoint(path, map_location="cpu")
+    state = {k[len(PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(PREFIX)}
+    own = field.state_dict()
+    if set(state) != set(own) or any(state[k].shape != own[k].shape for k in own):
+        raise ConfigError(
+            "--pipeline.medium-from: the checkpoint's medium is not this run's medium "
+            f"({len(state)} tensors against {len(own)}, or of other shapes)",
+            where=str(path),
+            fix="give a checkpoint of the same method and medium backend on the same dataset",
+        )
+    if any(not bool((state[k] == own[k]).all()) for k in ("bounds_center", "bounds_half") if k in own):
+        raise ConfigError(
+            "--pipeline.medium-from: the checkpoint's medium box differs from this run's",
+            where=str(path),
+            fix="give a checkpoint trained on the same dataset (the box comes from its cameras and points)",
+        )
+    field.load_state_dict({k: v.to(own[k].device) for k, v in state.items()})
+    return int(payload["step"])
