@@ -24,18 +24,24 @@ def load_medium(field: nn.Module, path: Path) -> int:
     payload = load_checkpoint(path, map_location="cpu")
     state = {k[len(PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(PREFIX)}
     own = field.state_dict()
-    if set(state) != set(own) or any(state[k].shape != own[k].shape for k in own):
+    for k in ("bounds_center", "bounds_half"):
+        if (
+            k in own
+            and k in state
+            and (state[k].shape != own[k].shape or not bool((state[k] == own[k]).all()))
+        ):
+            raise ConfigError(
+                "--pipeline.medium-from: the checkpoint's medium box differs from this run's",
+                where=str(path),
+                fix="give a checkpoint trained on the same dataset (the box comes from its cameras and points)",
+            )
+    try:  # strict; the field fills in buffers that older checkpoints lack
+        field.load_state_dict({k: v.to(own[k].device if k in own else "cpu") for k, v in state.items()})
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0][:160]
         raise ConfigError(
-            "--pipeline.medium-from: the checkpoint's medium is not this run's medium "
-            f"({len(state)} tensors against {len(own)}, or of other shapes)",
+            f"--pipeline.medium-from: the checkpoint's medium is not this run's medium ({first})",
             where=str(path),
             fix="give a checkpoint of the same method and medium backend on the same dataset",
-        )
-    if any(not bool((state[k] == own[k]).all()) for k in ("bounds_center", "bounds_half") if k in own):
-        raise ConfigError(
-            "--pipeline.medium-from: the checkpoint's medium box differs from this run's",
-            where=str(path),
-            fix="give a checkpoint trained on the same dataset (the box comes from its cameras and points)",
-        )
-    field.load_state_dict({k: v.to(own[k].device) for k, v in state.items()})
+        ) from None
     return int(payload["step"])

@@ -74,3 +74,17 @@ def test_another_datasets_medium_is_refused(scenes, tmp_path):
             "--pipeline.medium-from",
             str(ckpt),
         )
+
+
+def test_a_checkpoint_from_before_the_band_limit_loads(scenes, tmp_path):
+    """Checkpoints written before the grid's band-limit buffer existed lack it; it stays at 0."""
+    first = _trainer(scenes[0], tmp_path / "first", 2)
+    first.train()
+    ckpt = sorted((first.run_dir / "checkpoints").glob("step-*.ckpt"))[-1]
+    payload = torch.load(ckpt, weights_only=True)
+    del payload["pipeline"]["medium.band_sigma"]
+    old = tmp_path / "old.ckpt"
+    torch.save(payload, old)
+    second = _trainer(scenes[0], tmp_path / "second", 2, "--pipeline.medium-from", str(old))
+    assert float(second.pipeline.medium.band_sigma) == 0.0
+    torch.testing.assert_close(second.pipeline.medium.features, first.pipeline.medium.features)
