@@ -485,10 +485,7 @@ class GaussianPipeline(Pipeline):
         )
         self._targets = dehazed_views(datamanager, dcp) if plan.dehaze_inputs else {}
         colors = self._initialize_medium(dcp, plan)
-        if config.medium_start == "reference" and training and self.medium.has_medium:
-            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed))
-        if config.medium_from is not None and self.medium.has_medium:
-            self.init_info["medium_from_step"] = load_medium(self.medium, config.medium_from)
+        self._replace_medium_start(training, seed)
         points, colors = self._with_sky_shell(scene.points, colors, bounds)
         points, colors = self._with_ground_seeds(points, colors, scene.points)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
@@ -565,6 +562,17 @@ class GaussianPipeline(Pipeline):
                 observed, seen = observed_point_colors(dm, list(dm.train_indices), points, est)
                 colors = torch.where(seen[:, None], observed, colors)
         return colors
+
+    def _replace_medium_start(self, training: bool, seed: int) -> None:
+        """Overwrite the dark channel's start where asked: with the generator's true medium
+        (``medium_start reference``, a diagnosis) or an earlier run's (``medium_from``)."""
+        cfg, scene = self.config, self.datamanager.scene
+        if not self.medium.has_medium:
+            return
+        if cfg.medium_start == "reference" and training:
+            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed))
+        if cfg.medium_from is not None:
+            self.init_info["medium_from_step"] = load_medium(self.medium, cfg.medium_from)
 
     def _with_sky_shell(
         self, points: Tensor | None, colors: Tensor | None, bounds: FieldBounds
