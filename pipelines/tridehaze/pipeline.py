@@ -254,7 +254,7 @@ class GaussianPipelineConfig(PipelineConfig):
     """Start from, and hold for the whole run, the medium of this checkpoint of an earlier run on
     the same data (same method and medium backend): the scene is fitted afresh through it, the
     light is not recoloured again (pipelines/tridehaze/medium_transplant.py). Through the
-    default's own final medium the refitted scene ties on six of eight benchmark scenes (seed 42),
+    default's own final medium the refitted scene ties on six of eight benchmark scenes (seeds 42, 7),
     so the joint fit does not damage the Gaussians (docs/results/medium_recovery.md, session 56).
     None: the medium starts from the dark channel's estimate and learns in Stage I."""
     medium_learns_from: Literal["all", "true-depth"] = "all"
