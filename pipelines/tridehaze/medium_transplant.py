@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
 from torch import nn
 
 from pipelines.engine.checkpoint import load_checkpoint
@@ -25,18 +26,14 @@ def load_medium(field: nn.Module, path: Path) -> int:
     state = {k[len(PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(PREFIX)}
     own = field.state_dict()
     for k in ("bounds_center", "bounds_half"):
-        if (
-            k in own
-            and k in state
-            and (state[k].shape != own[k].shape or not bool((state[k] == own[k]).all()))
-        ):
+        if k in own and k in state and not torch.equal(state[k], own[k].cpu()):
             raise ConfigError(
                 "--pipeline.medium-from: the checkpoint's medium box differs from this run's",
                 where=str(path),
                 fix="give a checkpoint trained on the same dataset (the box comes from its cameras and points)",
             )
-    try:  # strict; the field fills in buffers that older checkpoints lack
-        field.load_state_dict({k: v.to(own[k].device if k in own else "cpu") for k, v in state.items()})
+    try:  # strict; the field fills in buffers that older checkpoints lack; copies onto its device
+        field.load_state_dict(state)
     except RuntimeError as exc:
         first = str(exc).strip().splitlines()[0][:160]
         raise ConfigError(

@@ -506,7 +506,7 @@ class GaussianPipeline(Pipeline):
         self.depth_source = plan.depth_source
         self.priors = self._view_priors(dcp, plan, seed)
         self._last: RasterizeOutput | None = None
-        self._true_depth: dict[int, Tensor | None] = {}  # march_to true-depth: the maps read so far
+        self._true_depth: dict[int, Tensor] = {}  # the true-depth diagnoses: the maps read so far
         self._dens_weight: Tensor | None = None
 
     def _build_medium(self, bounds: FieldBounds) -> MediumField:
@@ -879,19 +879,20 @@ class GaussianPipeline(Pipeline):
         return self.medium.render_view(self.compositor, camera, z, ones, self.model, self.rasterizer)
 
     def _true_depth_of(self, idx: int, size: tuple[int, int]) -> Tensor:
-        """Training view ``idx``'s true z-depth [H, W, 1], clamped to the far bound (diagnoses)."""
+        """Training view ``idx``'s true z-depth [H, W, 1], clamped to the far bound (diagnoses); read
+        and clamped once per view."""
         if idx not in self._true_depth:
-            self._true_depth[idx] = reference_depth(self.datamanager, idx, size)
-        z = self._true_depth[idx]
-        if z is None:
-            raise ConfigError(
-                "--pipeline.march-to true-depth and --pipeline.medium-learns-from true-depth need "
-                "the dataset's true depth maps",
-                where=str(self.datamanager.scene.root),
-                fix="use them on a dataset written by `td-synth scene`",
-            )
-        far = self.compositor.far_bound(self.medium)
-        return z.nan_to_num(far, far, far).clamp(1e-6, far)
+            z = reference_depth(self.datamanager, idx, size)
+            if z is None:
+                raise ConfigError(
+                    "--pipeline.march-to true-depth and --pipeline.medium-learns-from true-depth need "
+                    "the dataset's true depth maps",
+                    where=str(self.datamanager.scene.root),
+                    fix="use them on a dataset written by `td-synth scene`",
+                )
+            far = self.compositor.far_bound(self.medium)
+            self._true_depth[idx] = z.nan_to_num(far, far, far).clamp(1e-6, far)
+        return self._true_depth[idx]
 
     def _trusted_medium(self, idx: int, med: MediumRender) -> tuple[MediumRender, Tensor]:
         """``med`` with its T and S detached wherever the rendered end depth is off the true depth by
