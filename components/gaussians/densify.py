@@ -193,6 +193,19 @@ class Densifier:
         self._reset_stats(model.num_gaussians, model.means.device)
         return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
 
+    @torch.no_grad()
+    def prune(self, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer], mask: Tensor) -> int:
+        """Remove the Gaussians where ``mask`` [N] is set (never all of them), carrying Adam moments
+        and the growth statistics of the rest; returns how many were removed."""
+        n_prune = int(mask.sum())
+        if n_prune == 0 or n_prune >= model.num_gaussians:
+            return 0
+        keep = ~mask
+        self._apply(model, optimizers, lambda p, name: p[keep], keep=keep)
+        if self.grad_sum is not None and self.grad_sum.shape[0] == keep.shape[0]:
+            self.grad_sum, self.count = self.grad_sum[keep], self.count[keep]
+        return n_prune
+
     def _split(self, model: GaussianModel, optimizers, sel: Tensor) -> None:
         """Replace each selected Gaussian by two samples from it, 1.6x smaller."""
         scales = model.scales[sel]  # [M, 3]

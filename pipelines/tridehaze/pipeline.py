@@ -39,6 +39,7 @@ from pipelines.engine.contract import Decision, Pipeline, PipelineConfig, StepRe
 from pipelines.engine.datamanager import DataManager
 from pipelines.engine.medium_recovery import reference_depth
 from pipelines.engine.metrics import psnr
+from pipelines.tridehaze.floater_pruning import FloaterPruning, rendered_surface, surface_views, true_surface
 from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
 from pipelines.tridehaze.light_isotropy import LightIsotropy
@@ -267,6 +268,17 @@ class GaussianPipelineConfig(PipelineConfig):
     (docs/results/medium_recovery.md, session 56)."""
     medium_trust_tolerance: Annotated[float, Range(0.0, 1.0)] = 0.05
     """Relative end-depth error under which ``medium_learns_from true-depth`` trusts a pixel."""
+    prune_floaters: Literal["off", "true-depth", "rendered"] = "off"
+    """Prune, every ``densify.refine-every`` steps from ``densify.refine-start`` on, the Gaussians
+    whose centre lies more than ``floater-margin`` in front of the surface in more than
+    ``floater-share`` of the training views that see it (they carry haze that belongs to the
+    medium; pipelines/tridehaze/floater_pruning.py). ``true-depth``: the surface from td-synth's
+    true depth (a diagnosis, never a method); ``rendered``: the model's own depth where its
+    coverage is at least 0.5 (one extra render per training view each time)."""
+    floater_margin: Annotated[float, Range(0.0, 1.0)] = 0.15
+    """Relative distance in front of the surface from which a Gaussian's centre is in free space."""
+    floater_share: Annotated[float, Range(0.0, 1.0)] = 0.5
+    """Share of the views seeing a Gaussian on a surface pixel that must see it in free space."""
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
@@ -492,6 +504,7 @@ class GaussianPipeline(Pipeline):
         self.model.to(datamanager.device)
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
+        self.floater_pruning = FloaterPruning.from_config(config)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
         self.light_isotropy = self._light_verdict(max_steps).to(datamanager.device)
         self.light_colour = LightColourFit(
@@ -854,6 +867,26 @@ class GaussianPipeline(Pipeline):
 
     def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         self.last_refine = self.densifier.step(step, self.model, optimizers)
+        if self.floater_pruning.due(step):
+            self.last_refine["floaters"] = self._prune_floaters(optimizers)
+
+    @torch.no_grad()
+    def _prune_floaters(self, optimizers: dict[str, torch.optim.Optimizer]) -> int:
+        """Prune the Gaussians in front of the training views' surfaces (``prune_floaters``)."""
+        far = self.compositor.far_bound(self.medium)
+
+        def surface_of(idx: int, cam: Cameras) -> Tensor:
+            size = (int(cam.height[0]), int(cam.width[0]))
+            if self.config.prune_floaters == "true-depth":
+                return true_surface(self._true_depth_of(idx, size), far)
+            out = self._rasterize(cam, None, self.background)
+            return rendered_surface(out.depth[0], out.alpha[0])
+
+        dm = self.datamanager
+        views = surface_views(list(dm.train_indices), dm.camera, surface_of)
+        return self.densifier.prune(
+            self.model, optimizers, self.floater_pruning.select(self.model.means, views)
+        )
 
     # ---------------------------------------------------------------------------- rendering
     def _rasterize(self, camera: Cameras, step: int | None, background: Tensor) -> RasterizeOutput:
@@ -885,8 +918,8 @@ class GaussianPipeline(Pipeline):
             z = reference_depth(self.datamanager, idx, size)
             if z is None:
                 raise ConfigError(
-                    "--pipeline.march-to true-depth and --pipeline.medium-learns-from true-depth need "
-                    "the dataset's true depth maps",
+                    "--pipeline.march-to, --pipeline.medium-learns-from and --pipeline.prune-floaters "
+                    "true-depth need the dataset's true depth maps",
                     where=str(self.datamanager.scene.root),
                     fix="use them on a dataset written by `td-synth scene`",
                 )

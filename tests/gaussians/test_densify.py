@@ -147,3 +147,23 @@ def test_plateau_growth_stops_when_the_loss_stops_improving():
     # the schedule mode keeps growing on the same losses
     _, counts = _grow_run(losses, DensifyConfig(refine_start=20, refine_every=10), 80)
     assert counts == [8, 16, 32, 64, 128, 256, 512]
+
+
+def test_prune_by_mask_keeps_the_rest_and_their_statistics():
+    model = _model([0.01, 0.01, 0.01, 0.01], [0.5, 0.5, 0.5, 0.5])
+    opts = _optimizers(model)
+    d = Densifier(DensifyConfig(refine_start=1, refine_every=1), 1.0, max_steps=100)
+    d.collect(_fake_output(torch.tensor([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [4.0, 0.0]])))
+    kept_means = model.means[[0, 2, 3]].detach().clone()
+    moments = opts["means"].state[model.params["means"]]["exp_avg"][[0, 2, 3]].clone()
+    stats = d.grad_sum[[0, 2, 3]].clone()
+    assert d.prune(model, opts, torch.tensor([False, True, False, False])) == 1
+    assert model.num_gaussians == 3
+    torch.testing.assert_close(model.means.detach(), kept_means, rtol=0, atol=0)
+    torch.testing.assert_close(opts["means"].state[model.params["means"]]["exp_avg"], moments, rtol=0, atol=0)
+    torch.testing.assert_close(d.grad_sum, stats, rtol=0, atol=0)
+    _check_optimizer_consistency(model, opts)
+    # nothing, or everything, selected: the model is left alone
+    assert d.prune(model, opts, torch.zeros(3, dtype=torch.bool)) == 0
+    assert d.prune(model, opts, torch.ones(3, dtype=torch.bool)) == 0
+    assert model.num_gaussians == 3
