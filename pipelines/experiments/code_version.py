@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable
-from functools import cache
 from pathlib import Path
 
 SOURCE_SUFFIXES = (".py", ".cpp", ".h", ".cu")
@@ -32,9 +31,9 @@ def source_fingerprint(roots: Iterable[Path]) -> str:
     return digest.hexdigest()[:16]
 
 
-@cache
 def code_fingerprint() -> str:
-    """The fingerprint of this installation's ``tridehaze_plugin``, ``components`` and ``pipelines``."""
+    """The fingerprint of this installation's ``tridehaze_plugin``, ``components`` and ``pipelines``
+    as they are now (read afresh at each call, about 10 ms: a sweep may outlive an edit of the code)."""
     import components
     import pipelines
     import tridehaze_plugin

@@ -223,7 +223,7 @@ class AblationRunner:
         train_info = _read_json(rd / "eval" / "metrics.json")
         eval_cpu = self.cpu_seconds[threading.get_ident()] - train_cpu
         return {
-            "signature": self.signature(job),
+            "signature": self.launch_signature(job),
             "status": "ok",
             "scene": job.scene.name,
             "variant": job.variant.name,
@@ -242,6 +242,12 @@ class AblationRunner:
             "observable": report.get("observable"),
             "baselines": report.get("baselines"),
         }
+
+    def launch_signature(self, job: Job) -> dict[str, Any]:
+        """The settings and code the run folder's training started with (its state file, written at
+        a fresh start and matched at each resume), so a result trained before an edit of the code is
+        never stored as the edited code's; the current signature where there is no state file."""
+        return _read_json(self.state_path(job)) or self.signature(job)
 
     def state_path(self, job: Job) -> Path:
         """The settings a run folder was started with (kept outside it: td-train makes the folder)."""

@@ -352,6 +352,12 @@ class GaussianPipelineConfig(PipelineConfig):
             raise ConfigError(
                 "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
             )
+        if self.medium_start == "reference" and self.medium_from is not None:
+            raise ConfigError(
+                "--pipeline.medium-start reference and --pipeline.medium-from both replace the medium's "
+                "start: the checkpoint's medium would overwrite the reference fit",
+                fix="give only one of them",
+            )
 
     def resolve(self, datamanager: DataManager, seed: int) -> tuple[GaussianPipelineConfig, list[Decision]]:
         """The haze probe of the training views, where a choice depends on it: the medium backend

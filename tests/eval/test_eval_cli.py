@@ -234,3 +234,27 @@ def test_the_source_fingerprint_follows_the_code_not_the_docs(tmp_path):
     (pkg / "b.py").write_text("")
     assert source_fingerprint([pkg]) not in (first, changed)
     assert len(code_fingerprint()) == 16 and code_fingerprint() == code_fingerprint()
+
+
+def test_a_result_carries_the_code_its_training_started_with(tmp_path, monkeypatch):
+    """An edit of the code while a sweep runs: the run started before it is stored under the old
+    code's fingerprint (so the next sweep runs it again), a run started after it under the new."""
+    import threading
+
+    from pipelines.engine.run_config import write_text_atomic
+    from pipelines.experiments import runner as runner_mod
+    from pipelines.experiments.ablation import Variant
+
+    runner = runner_mod.AblationRunner(runner_mod.RunnerOptions(output_dir=tmp_path, max_steps=100))
+    runner.cpu_seconds[threading.get_ident()] = 0.0
+    job = runner_mod.Job(tmp_path / "scene", Variant("v", "tri-dehaze"))
+    rd = runner.run_dir(job)
+    monkeypatch.setattr(runner_mod, "code_fingerprint", lambda: "tree-a")
+    runner._train_command(job, rd)  # starts afresh: the state holds tree-a
+    monkeypatch.setattr(runner_mod, "code_fingerprint", lambda: "tree-b")  # the code edited meanwhile
+    result = runner._result(job, rd, {}, 1.0, 1.0, 0.0)
+    assert result["signature"]["code"] == "tree-a" and runner.signature(job)["code"] == "tree-b"
+    write_text_atomic(runner.result_path(job), json.dumps(result))
+    assert runner.finished(job) is None and runner.state(job) == "other code"
+    runner._train_command(job, rd)  # a fresh start under tree-b
+    assert runner._result(job, rd, {}, 1.0, 1.0, 0.0)["signature"]["code"] == "tree-b"

@@ -74,6 +74,9 @@ def test_another_datasets_medium_is_refused(scenes, tmp_path):
             "--pipeline.medium-from",
             str(ckpt),
         )
+    with pytest.raises(ConfigError, match="both replace the medium's start"):
+        _trainer(scenes[0], tmp_path / "both", 2, "--pipeline.medium-start", "reference",
+                 "--pipeline.medium-from", str(ckpt))  # fmt: skip
 
 
 def test_a_checkpoint_from_before_the_band_limit_loads(scenes, tmp_path):
