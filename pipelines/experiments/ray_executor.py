@@ -213,6 +213,7 @@ class RayExecutor:
         self.runner = runner
         self.opts = opts
         self.attempts: dict[str, int] = {}
+        self.submitted: dict[str, dict[str, Any]] = {}  # job key -> its signature when submitted
 
     def _init_ray(self):
         # no usage statistics leave the machine; an embedded Ray binds to 127.0.0.1 only (Ray maps
@@ -299,6 +300,7 @@ class RayExecutor:
                 name=f"td-run {job_key(job)}",
             ).remote(job, opts, plan, fp, box, board)  # fmt: skip
             refs[ref] = job
+            self.submitted[job_key(job)] = self.runner.signature(job)  # the code it was sent with
         results: list[dict[str, Any]] = []
         pending = list(refs)
         try:
@@ -351,7 +353,7 @@ class RayExecutor:
                 result["log"] = str(runner.log_path(job))
         if result.get("status") != "ok":
             return result
-        result["signature"] = runner.signature(job)
+        result["signature"] = self.submitted.get(key) or runner.signature(job)
         if out["stored_at"] is not None:
             result["run"] = out["stored_at"]
         elif out["archive"] is not None:
