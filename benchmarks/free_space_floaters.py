@@ -20,7 +20,6 @@ Writes OUT.json, OUT.md (one row per run) and OUT.png.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -33,30 +32,20 @@ if str(REPO) not in sys.path:
 
 from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
 from reference_views import TRUE_T_BINS, reference_views  # noqa: E402
-from sky_split import arm_of, run_label  # noqa: E402
+from sky_split import _far_bound_m, arm_of, run_label  # noqa: E402
 
 from components.gaussians.free_space import floaters, in_front_counts  # noqa: E402
 from components.gaussians.sh import C0  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
-from pipelines.tridehaze.floater_pruning import SKY_SHARE, rendered_surface  # noqa: E402
+from pipelines.tridehaze.floater_pruning import rendered_surface, true_surface  # noqa: E402
 
 MARGIN = 0.15
 """Relative distance in front of the surface from which a centre is in free space."""
 
 
 def _far_z(run) -> float:
-    meta = Path(str(run.config.dataset.data)) / "synth_meta.json"
-    if not meta.is_file():
-        raise SystemExit(f"{meta}: not found; the diagnosis needs a td-synth scene (its far bound)")
-    return (
-        SKY_SHARE * float(json.loads(meta.read_text())["far_bound_m"]) * run.datamanager.scene.transform.scale
-    )
-
-
-def _surface(true_z: Tensor, far_z: float) -> Tensor:
-    z = true_z[..., 0].clone()  # [H, W]
-    z[~(z < far_z)] = float("nan")
-    return z
+    """The generator's far bound in the run's frame (its sky lies at it)."""
+    return _far_bound_m(run) * run.datamanager.scene.transform.scale
 
 
 def _group(mask: Tensor, opacity: Tensor, rgb: Tensor) -> dict:
@@ -80,7 +69,7 @@ def _alpha_share_by_true_t(pipe, dm, far_z: float) -> list[float | None]:
     g = pipe.model
     sums = [[0.0, 0] for _ in TRUE_T_BINS]
     for v in reference_views(dm):
-        surface = _surface(v.true_z, far_z)
+        surface = true_surface(v.true_z, far_z)
         view = [(v.camera.viewmats()[0], v.camera.Ks()[0], surface)]
         in_front, _ = in_front_counts(g.means, view, MARGIN)
         share = g.render_values(pipe.rasterizer, v.camera, (in_front > 0).to(g.means)[:, None])[0, ..., 0]
@@ -100,7 +89,7 @@ def diagnose(config: Path) -> dict:
     true_views, own_views = [], []
     for v in reference_views(dm, list(dm.train_indices)):
         out = pipe.render(v.camera)
-        true_views.append((v.camera.viewmats()[0], v.camera.Ks()[0], _surface(v.true_z, far_z)))
+        true_views.append((v.camera.viewmats()[0], v.camera.Ks()[0], true_surface(v.true_z, far_z)))
         own_views.append(
             (v.camera.viewmats()[0], v.camera.Ks()[0], rendered_surface(out["depth"], out["alpha"]))
         )
