@@ -47,9 +47,16 @@ class LightIsotropy(nn.Module):
         window: tuple[int, int],
         measures: bool = True,
         seen_light: tuple[float, float] = (0.05, 1.0),
+        ramp: tuple[float, float] | None = None,
     ) -> None:
         super().__init__()
         self.weak, self.strong, self.threshold = weak, strong, threshold
+        if ramp is not None and not 0.0 <= ramp[0] < ramp[1]:
+            raise ValueError(f"light-weight ramp {ramp} must rise: 0 <= start < end")
+        self.ramp = ramp
+        """Spreads (start, end) over which the weight falls geometrically from ``strong`` to
+        ``weak`` instead of stepping at ``threshold``: a spread read near the threshold then moves
+        the weight a little, not by 10x (None: the step)."""
         self.seen_level, self.seen_share = seen_light
         """A one-light run keeps the weak weight where more than ``seen_share`` of the window's
         pixels rendered T under ``seen_level``: those pixels see the haze light itself and pin its
@@ -66,7 +73,7 @@ class LightIsotropy(nn.Module):
         self.register_buffer("decided", torch.tensor(-1.0, dtype=torch.float64))  # else the cv
         self.decisions: list[str | Decision] = []
         """The decision, once made (the trainer prints it and writes it to logs/decisions.jsonl)."""
-        self._strong: bool | None = None  # the decided buffer read once, not at every step
+        self._weight: float | None = None  # the decided buffer read once, not at every step
 
     def observe(self, step: int, med: MediumRender) -> None:
         """Add one step's per-ray light (nothing is computed outside the window)."""
@@ -88,16 +95,15 @@ class LightIsotropy(nn.Module):
         do not recover from the strong bound's first steps, session 30.)"""
         if not self.measures or step < self.decision_step:
             return self.weak
-        if self._strong is None:
+        if self._weight is None:
             if float(self.decided) == -1.0:
                 self._decide(step)
-            self._strong = self._raises()
-        return self.strong if self._strong else self.weak
+            self._weight = self._decided_weight()
+        return self._weight
 
     def raised(self, step: int) -> bool:
-        """Whether the weight at ``step`` is the raised one (the decision taken, one light)."""
-        self.weight(step)  # takes the decision at its step
-        return self.measures and step >= self.decision_step and bool(self._strong)
+        """Whether the weight at ``step`` is above the weak one (the decision taken, one light)."""
+        return self.weight(step) > self.weak  # takes the decision at its step
 
     def measured_cv(self) -> float | None:
         """The light's spread the decision was made on; None before the decision or where no
@@ -124,6 +130,13 @@ class LightIsotropy(nn.Module):
         """Whether the decision raises the weight: one light, not seen through opaque haze."""
         return self.judged_one_light() and not self.sees_light() and self.strong > 0.0
 
+    def _decided_weight(self) -> float:
+        """The weight the decision sets: the step at ``threshold``, or the ramp's value."""
+        cv = self.measured_cv()
+        if self.ramp is None or cv is None or self.strong <= 0.0 or self.sees_light():
+            return self.strong if self._raises() else self.weak
+        return ramped_weight(cv, self.ramp, self.weak, self.strong)
+
     def opaque_shares(self) -> dict[str, float]:
         """The share of the window's pixels whose rendered T was under each of ``OPAQUE_LEVELS``."""
         total, *below = (float(v) for v in self.opaque)
@@ -142,7 +155,7 @@ class LightIsotropy(nn.Module):
         self.decided.fill_(NO_MEASUREMENT if cv is None else cv)
         one_light = cv is not None and cv < self.threshold
         seen = one_light and self.sees_light()
-        weight = self.strong if self._raises() else self.weak
+        weight = self._decided_weight()
         if cv is None:
             text = "no pixel has enough haze to measure the medium's light on"
         elif seen:
@@ -150,6 +163,11 @@ class LightIsotropy(nn.Module):
                 f"the medium's light varies by {cv:.1%} over the rays (under {self.threshold:.1%}): one "
                 f"light, but {self.seen_light_share():.0%} of the pixels see it through opaque haze (T < {self.seen_level:g}), "
                 "which pins its brightness"
+            )
+        elif self.ramp is not None:
+            text = (
+                f"the medium's light varies by {cv:.1%} over the rays (weight ramp "
+                f"{self.ramp[0]:.1%} to {self.ramp[1]:.1%})"
             )
         elif one_light:
             text = (
@@ -171,4 +189,14 @@ class LightIsotropy(nn.Module):
         state_dict.setdefault(prefix + "decided", self.decided.clone())
         state_dict.setdefault(prefix + "opaque", self.opaque.clone())
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._strong = None
+        self._weight = None
+
+
+def ramped_weight(cv: float, ramp: tuple[float, float], weak: float, strong: float) -> float:
+    """``strong`` at spreads up to ``ramp[0]``, ``weak`` from ``ramp[1]``, geometric between (the
+    weights span a decade, so a linear blend would sit near ``strong`` over most of the ramp)."""
+    start, end = ramp
+    share = min(max((cv - start) / (end - start), 0.0), 1.0)
+    if weak <= 0.0:
+        return strong * (1.0 - share)
+    return strong * (weak / strong) ** share

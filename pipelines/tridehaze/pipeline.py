@@ -198,6 +198,12 @@ class GaussianPipelineConfig(PipelineConfig):
     Measured: 0.007-0.014 on real photos hazed with one light, 0.02-0.06 on the generated scenes
     without a sun, 0.07-0.16 on the sunlit ones, where a strong bound costs 2-6 dB: 0.03 keeps
     a margin of 2.4x below the sunlit scenes."""
+    light_weight_ramp: tuple[float, float] | None = None
+    """Spreads (start, end) over which the raised dark-channel weight falls geometrically to
+    ``lambda-dcp`` instead of stepping at ``light-isotropy-cv``: runs of one scene read spreads
+    within about 1 % of each other and five generated scenes sit at 2.5-3.5 %, so the step moved
+    one of them by 2 dB between seeds (docs/results/medium_recovery.md, session 57). The clean
+    render's fill (``composite.clean-fill auto``) still follows the threshold. None: the step."""
     light_seen_share: Annotated[float, Range(0.0, 1.0)] = 1.0
     """A run judged one light keeps the weak dark-channel weight where more than this share of the
     verdict window's pixels render as opaque haze (T under ``light-seen-level``): there the photos
@@ -558,6 +564,7 @@ class GaussianPipeline(Pipeline):
             window,
             measures=read and decide < self.freeze_step,
             seen_light=(cfg.light_seen_level, cfg.light_seen_share),
+            ramp=cfg.light_weight_ramp,
         )
 
     def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:
