@@ -196,7 +196,9 @@ def ramped_weight(cv: float, ramp: tuple[float, float], weak: float, strong: flo
     """``strong`` at spreads up to ``ramp[0]``, ``weak`` from ``ramp[1]``, geometric between (the
     weights span a decade, so a linear blend would sit near ``strong`` over most of the ramp)."""
     start, end = ramp
-    share = min(max((cv - start) / (end - start), 0.0), 1.0)
+    share = (cv - start) / (end - start)
+    if share <= 0.0 or share >= 1.0:
+        return strong if share <= 0.0 else weak
     if weak <= 0.0:
         return strong * (1.0 - share)
     return strong * (weak / strong) ** share

@@ -195,3 +195,51 @@ def test_the_seen_light_gate_survives_a_resume():
 def test_an_unknown_seen_level_is_refused():
     with pytest.raises(ValueError, match="seen-light level"):
         LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), seen_light=(0.07, 0.2))
+
+
+def _light_with_cv(cv: float) -> torch.Tensor:
+    """An 8x8 per-ray light of mean 0.6 whose spread (std / mean) is ``cv``: half the pixels above,
+    half below."""
+    light = torch.full((8, 8), 0.6)
+    light.view(-1)[::2] += 0.6 * cv
+    light.view(-1)[1::2] -= 0.6 * cv
+    return light
+
+
+@pytest.mark.parametrize(
+    ("cv", "expected"),
+    [(0.01, 1.0), (0.025, 1.0), (0.0375, 0.1**0.5), (0.051, 0.1), (0.09, 0.1)],
+)
+def test_the_ramp_falls_geometrically_between_its_spreads(cv, expected):
+    iso = LightIsotropy(weak=0.1, strong=1.0, threshold=0.03, window=(0, 3), ramp=(0.025, 0.05))
+    weights = _run(_light_with_cv(cv), range(5), iso)
+    assert weights[:3] == [0.1] * 3  # weak until the decision, as without the ramp
+    assert weights[3] == pytest.approx(expected, rel=1e-3) and weights[4] == weights[3]
+    assert iso.decisions[0].data["dcp_weight"] == pytest.approx(expected, rel=1e-3)
+    assert iso.raised(4) == (expected > 0.1 + 1e-9)
+    assert "weight ramp 2.5% to 5.0%" in iso.decisions[0].message
+
+
+def test_the_ramp_moves_the_weight_a_little_where_the_step_moves_it_tenfold():
+    """Two runs of one scene reading 2.9 % and 3.1 %: the step gives 1 and 0.1, the ramp close weights."""
+    step = [
+        _run(_light_with_cv(cv), range(5), LightIsotropy(0.1, 1.0, 0.03, (0, 3)))[-1] for cv in (0.029, 0.031)
+    ]
+    ramp = [
+        _run(_light_with_cv(cv), range(5), LightIsotropy(0.1, 1.0, 0.03, (0, 3), ramp=(0.025, 0.05)))[-1]
+        for cv in (0.029, 0.031)
+    ]
+    assert step == [1.0, 0.1]
+    assert 0.4 < ramp[1] < ramp[0] < 0.8 and ramp[0] / ramp[1] < 1.2
+
+
+def test_the_ramp_keeps_the_gates_and_survives_a_resume():
+    seen = _decide_on(_opaque_in_part(0.4), seen_light=(0.05, 0.2), ramp=(0.025, 0.05))
+    assert seen.weight(4) == 0.1  # opaque haze shows the light: weak, ramp or not
+    iso = LightIsotropy(0.1, 1.0, 0.03, (0, 3), ramp=(0.025, 0.05))
+    _run(_light_with_cv(0.0375), range(5), iso)
+    after = LightIsotropy(0.1, 1.0, 0.03, (0, 3), ramp=(0.025, 0.05))
+    after.load_state_dict(iso.state_dict())
+    assert after.weight(6) == pytest.approx(0.1**0.5, rel=1e-3) and not after.decisions
+    with pytest.raises(ValueError, match="must rise"):
+        LightIsotropy(0.1, 1.0, 0.03, (0, 3), ramp=(0.05, 0.025))
