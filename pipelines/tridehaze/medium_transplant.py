@@ -16,6 +16,8 @@ from tridehaze_plugin.errors import ConfigError
 
 PREFIX = "medium."
 """The medium's keys in a pipeline's state dict."""
+VERDICT_PREFIX = "light_isotropy."
+"""The one-light verdict's keys in a pipeline's state dict."""
 
 
 def load_medium(field: nn.Module, path: Path) -> int:
@@ -42,3 +44,19 @@ def load_medium(field: nn.Module, path: Path) -> int:
             fix="give a checkpoint of the same method and medium backend on the same dataset",
         ) from None
     return int(payload["step"])
+
+
+def load_verdict(verdict: nn.Module, path: Path) -> bool:
+    """Load the one-light verdict the checkpoint's run took into ``verdict``, so a run through a
+    held medium renders with the fill its source chose, not one re-read from the held medium (its
+    spread differs from the one the source read while learning: session 56's street-homogeneous
+    flipped). Returns whether the checkpoint carried a decision (older ones or runs stopped before
+    the decision step do not; the verdict is then taken as usual)."""
+    payload = load_checkpoint(path, map_location="cpu")
+    state = {
+        k[len(VERDICT_PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(VERDICT_PREFIX)
+    }
+    if float(state.get("decided", torch.tensor(-1.0))) == -1.0:
+        return False
+    verdict.load_state_dict(state)
+    return True

@@ -43,7 +43,7 @@ from pipelines.tridehaze.floater_pruning import FloaterPruning, rendered_surface
 from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
 from pipelines.tridehaze.light_isotropy import LightIsotropy
-from pipelines.tridehaze.medium_transplant import load_medium
+from pipelines.tridehaze.medium_transplant import load_medium, load_verdict
 from pipelines.tridehaze.priors import (
     ViewPrior,
     build_view_priors,
@@ -260,7 +260,8 @@ class GaussianPipelineConfig(PipelineConfig):
     medium_from: Path | None = None
     """Start from, and hold for the whole run, the medium of this checkpoint of an earlier run on
     the same data (same method and medium backend): the scene is fitted afresh through it, the
-    light is not recoloured again (pipelines/tridehaze/medium_transplant.py). Through the
+    light is not recoloured again and the one-light verdict is the checkpoint's
+    (pipelines/tridehaze/medium_transplant.py). Through the
     default's own final medium the refitted scene ties on six of eight benchmark scenes (seeds 42, 7),
     so the joint fit does not damage the Gaussians (docs/results/medium_recovery.md, session 56).
     None: the medium starts from the dark channel's estimate and learns in Stage I."""
@@ -550,14 +551,15 @@ class GaussianPipeline(Pipeline):
 
     def _light_verdict(self, max_steps: int) -> LightIsotropy:
         """The one-light verdict and the dark-channel weight it sets (measured only where the medium
-        learns before it and the weight or ``clean-fill auto`` reads it)."""
+        learns before it and the weight or ``clean-fill auto`` reads it); with ``medium_from``, the
+        checkpoint's own verdict where it took one."""
         cfg = self.config
         decide = light_decision_step(
             cfg.light_decision_fraction, max_steps, self.hold_steps, self.freeze_step
         )
         window = (max(self.hold_steps, decide - (decide - self.hold_steps) // 2), decide)
         read = cfg.lambda_dcp_isotropic > 0 or cfg.composite.clean_fill == "auto"
-        return LightIsotropy(
+        verdict = LightIsotropy(
             cfg.lambda_dcp,
             cfg.lambda_dcp_isotropic,
             cfg.light_isotropy_cv,
@@ -566,6 +568,9 @@ class GaussianPipeline(Pipeline):
             seen_light=(cfg.light_seen_level, cfg.light_seen_share),
             ramp=cfg.light_weight_ramp,
         )
+        if cfg.medium_from is not None and self.medium.has_medium:
+            self.init_info["medium_from_verdict"] = load_verdict(verdict, cfg.medium_from)
+        return verdict
 
     def _initialize_medium(self, dcp: dict[int, DCPResult], plan: _PriorPlan) -> Tensor | None:
         """Start the medium from the dark channel's estimate; returns the seed colours to use

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -91,3 +92,39 @@ def test_a_checkpoint_from_before_the_band_limit_loads(scenes, tmp_path):
     second = _trainer(scenes[0], tmp_path / "second", 2, "--pipeline.medium-from", str(old))
     assert float(second.pipeline.medium.band_sigma) == 0.0
     torch.testing.assert_close(second.pipeline.medium.features, first.pipeline.medium.features)
+
+
+def test_the_sources_one_light_verdict_comes_with_its_medium(scenes, tmp_path):
+    """The held medium's spread is not the one its run read while learning; re-reading it flipped
+    session 56's street-homogeneous fill. The source's decision is carried and not taken again."""
+    first = _trainer(scenes[0], tmp_path / "first", 6)
+    first.train()
+    source = first.pipeline.light_isotropy
+    assert float(source.decided) != -1.0, "the first run must have decided"
+    ckpt = sorted((first.run_dir / "checkpoints").glob("step-*.ckpt"))[-1]
+    payload = torch.load(ckpt, weights_only=True)
+    payload["pipeline"]["light_isotropy.decided"] = torch.tensor(0.5, dtype=torch.float64)  # not one light
+    planted = tmp_path / "planted.ckpt"
+    torch.save(payload, planted)
+
+    second = _trainer(scenes[0], tmp_path / "second", 6, "--pipeline.medium-from", str(planted))
+    assert second.pipeline.init_info["medium_from_verdict"] is True
+    second.train()
+    verdict = second.pipeline.light_isotropy
+    assert float(verdict.decided) == 0.5 and not verdict.judged_one_light()
+    assert _verdicts_logged(first) == 1 and _verdicts_logged(second) == 0  # not decided again
+
+    del payload["pipeline"]["light_isotropy.decided"]  # a checkpoint from before the verdict
+    old = tmp_path / "old.ckpt"
+    torch.save(payload, old)
+    third = _trainer(scenes[0], tmp_path / "third", 6, "--pipeline.medium-from", str(old))
+    assert third.pipeline.init_info["medium_from_verdict"] is False
+    third.train()
+    assert float(third.pipeline.light_isotropy.decided) != -1.0  # taken as usual
+
+
+def _verdicts_logged(trainer: Trainer) -> int:
+    """How many one-light decisions the run wrote to logs/decisions.jsonl."""
+    path = trainer.run_dir / "logs" / "decisions.jsonl"
+    lines = path.read_text().splitlines() if path.exists() else []  # no decisions: no file
+    return sum("light_cv" in json.loads(line) for line in lines)
