@@ -59,6 +59,7 @@ from pipelines.tridehaze.priors import (
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.reference_start import fit_to_reference
 from pipelines.tridehaze.sky_shell import sky_shell
+from pipelines.tridehaze.true_depth_march import march_to_depth, trusted_medium
 from pipelines.tridehaze.warmup import warmup_depths
 from tridehaze_plugin.config import NonNegative, Positive, Range, RegistryChoice, retire_options
 from tridehaze_plugin.errors import ConfigError
@@ -926,8 +927,7 @@ class GaussianPipeline(Pipeline):
         if not self.medium.has_medium:
             return None
         z = self._true_depth_of(idx, tuple(out.depth.shape[1:3])).to(out.depth)  # [H, W, 1]
-        ones = torch.ones_like(z)
-        return self.medium.render_view(self.compositor, camera, z, ones, self.model, self.rasterizer)
+        return march_to_depth(self.medium, self.compositor, camera, z, self.model, self.rasterizer)
 
     def _true_depth_of(self, idx: int, size: tuple[int, int]) -> Tensor:
         """Training view ``idx``'s true z-depth [H, W, 1], clamped to the far bound (diagnoses); read
@@ -946,16 +946,10 @@ class GaussianPipeline(Pipeline):
         return self._true_depth[idx]
 
     def _trusted_medium(self, idx: int, med: MediumRender) -> tuple[MediumRender, Tensor]:
-        """``med`` with its T and S detached wherever the rendered end depth is off the true depth by
-        more than ``medium_trust_tolerance`` (``medium_learns_from true-depth``), and the share of
-        pixels trusted."""
+        """``med`` learning only where its end depth is within ``medium_trust_tolerance`` of view
+        ``idx``'s true depth (``medium_learns_from true-depth``), and the share of pixels trusted."""
         z = self._true_depth_of(idx, tuple(med.end_depth.shape[:2])).to(med.end_depth)  # [H, W, 1]
-        ok = ((med.end_depth.detach() - z).abs() <= self.config.medium_trust_tolerance * z).to(z)
-        T, S = med.transmittance, med.scattering
-        trusted = replace(
-            med, transmittance=ok * T + (1 - ok) * T.detach(), scattering=ok * S + (1 - ok) * S.detach()
-        )
-        return trusted, ok.mean()
+        return trusted_medium(med, z, self.config.medium_trust_tolerance)
 
     @torch.no_grad()
     def render(self, camera: Cameras, step: int | None = None) -> dict[str, Tensor]:

@@ -14,9 +14,11 @@ import pytest
 import torch
 from rich.console import Console
 
+from components.medium.compositing import MediumRender
 from components.medium.reference import true_medium
 from pipelines.engine.medium_recovery import reference_depth
 from pipelines.engine.trainer import Trainer
+from pipelines.tridehaze.true_depth_march import march_to_depth, trusted_medium
 from tests.tiny_scenes import tiny_hazy_scene
 from tridehaze_plugin.cli.train import parse_args
 from tridehaze_plugin.errors import ConfigError
@@ -66,14 +68,15 @@ def test_march_to_true_depth(scene, tmp_path):
     pipe, dm = trainer.pipeline, trainer.datamanager
     idx = list(dm.train_indices)[0]
     cam = dm.camera(idx)
-    out = pipe._rasterize(cam, None, pipe.background)
-    med = pipe._medium_to_true_depth(idx, cam, out)
     size = (int(cam.height[0]), int(cam.width[0]))
-    T, S = pipe.medium_at_depth(cam, reference_depth(dm, idx, size))
+    z = reference_depth(dm, idx, size)  # [H, W, 1]
+    med = march_to_depth(pipe.medium, pipe.compositor, cam, z, pipe.model, pipe.rasterizer)
+    T, S = pipe.medium_at_depth(cam, z)
     torch.testing.assert_close(med.transmittance, T, rtol=1e-4, atol=1e-5)
     torch.testing.assert_close(med.scattering, S, rtol=1e-4, atol=1e-5)
-    rendered = pipe._medium(cam, out)  # the default march ends elsewhere
-    assert float((rendered.transmittance.detach() - T).abs().max()) > 1e-3
+    assert med.transmittance.requires_grad  # the medium learns through it
+    rendered, _ = pipe.medium_at_depth(cam, z * 0.5)  # a march that ends elsewhere differs
+    assert float((rendered - T).abs().max()) > 1e-3
     trainer.train()  # and trains
 
 
@@ -90,22 +93,28 @@ def test_march_to_true_depth_needs_the_maps(scene, tmp_path):
 
 
 def test_medium_learns_only_from_pixels_at_the_true_depth(scene, tmp_path):
-    trainer = _trainer(scene, tmp_path / "e", "--pipeline.medium-learns-from", "true-depth")
-    pipe, dm = trainer.pipeline, trainer.datamanager
-    idx = list(dm.train_indices)[0]
-    cam = dm.camera(idx)
-    med = pipe._medium(cam, pipe._rasterize(cam, None, pipe.background))
-    trusted, share = pipe._trusted_medium(idx, med)
-    torch.testing.assert_close(trusted.transmittance, med.transmittance)  # the forward pass is unchanged
-    torch.testing.assert_close(trusted.scattering, med.scattering)
-    z = reference_depth(dm, idx, tuple(med.end_depth.shape[:2])).clamp_max(
-        pipe.compositor.far_bound(pipe.medium)
-    )
-    want = ((med.end_depth.detach() - z).abs() <= 0.05 * z).float()  # [H, W, 1]
-    assert 0.0 < float(want.mean()) < 1.0, "the tiny scene must have both kinds of pixel"
-    (grad_t,) = torch.autograd.grad(trusted.transmittance.sum(), med.transmittance, retain_graph=True)
+    T = torch.rand(6, 8, 1, requires_grad=True)  # [H, W, 1]
+    S = torch.rand(6, 8, 3, requires_grad=True)  # [H, W, 3]
+    end = torch.full((6, 8, 1), 2.0)
+    med = MediumRender(transmittance=T, scattering=S, end_depth=end)
+    z = torch.full((6, 8, 1), 2.0)
+    z[:3] = 3.0  # the top half's rendered depth is a third short
+    z[3:, :2] = 2.08  # within 5 %
+    trusted, share = trusted_medium(med, z, 0.05)
+    torch.testing.assert_close(trusted.transmittance, T)  # the forward pass is unchanged
+    torch.testing.assert_close(trusted.scattering, S)
+    want = torch.ones(6, 8, 1)
+    want[:3] = 0.0
+    (grad_t,) = torch.autograd.grad(trusted.transmittance.sum(), T, retain_graph=True)
     torch.testing.assert_close(grad_t, want)  # the gradient passes the trusted pixels only
-    (grad_s,) = torch.autograd.grad(trusted.scattering.sum(), med.scattering)
+    (grad_s,) = torch.autograd.grad(trusted.scattering.sum(), S)
     torch.testing.assert_close(grad_s, want.expand_as(grad_s))
-    assert float(share) == pytest.approx(float(want.mean()))
+    assert float(share) == pytest.approx(0.5)
+    trainer = _trainer(scene, tmp_path / "e", "--pipeline.medium-learns-from", "true-depth")
     trainer.train()  # and trains
+    shares = [json.loads(line).get("trusted_share") for line in _metrics_lines(trainer)]
+    assert any(s is not None and 0.0 <= s <= 1.0 for s in shares)
+
+
+def _metrics_lines(trainer: Trainer) -> list[str]:
+    return (trainer.run_dir / "logs" / "metrics.jsonl").read_text().splitlines()
