@@ -290,6 +290,12 @@ class GaussianPipelineConfig(PipelineConfig):
     medium_hold_fraction: float = 0.05
     """The medium keeps its initial values for this fraction of the run: early, the Gaussians are
     transparent and the rendered depth is the far bound, which would drive the extinction down."""
+    medium_freeze_blur: Annotated[float, NonNegative] = 0.0
+    """At the freeze, low-pass the medium's grid by a Gaussian of this std (grid cells) for Stage II
+    and every render after it. The medium learns faster than the Gaussians and keeps the surfaces'
+    texture it took up early in Stage I (3-100x the true roughness, session 52); blurring the
+    frozen field hands that texture to the Gaussians, which Stage II refits. Grid backends only
+    (triplane, voxel); 0 = off."""
     medium_coarse_to_fine: Annotated[float, NonNegative] = 0.0
     """Coarse-to-fine medium: when it starts learning, the grid's features are low-passed by a
     Gaussian of this std (in grid cells), falling linearly to none over ``medium-coarse-fraction``
@@ -541,13 +547,15 @@ class GaussianPipeline(Pipeline):
         for a medium without a grid to low-pass."""
         cfg = self.config
         medium = cfg.medium.setup(bounds=bounds).to(self.datamanager.device)
-        if cfg.medium_coarse_to_fine > 0 and medium.has_medium and not medium.band_limits:
-            raise ConfigError(
-                f"--pipeline.medium-coarse-to-fine low-passes a grid; the {cfg.medium.backend!r} "
-                "medium has none",
-                fix="use --pipeline.medium.backend triplane or voxel, or leave "
-                "--pipeline.medium-coarse-to-fine at 0",
-            )
+        for flag, value in (
+            ("coarse-to-fine", cfg.medium_coarse_to_fine),
+            ("freeze-blur", cfg.medium_freeze_blur),
+        ):
+            if value > 0 and medium.has_medium and not medium.band_limits:
+                raise ConfigError(
+                    f"--pipeline.medium-{flag} low-passes a grid; the {cfg.medium.backend!r} medium has none",
+                    fix=f"use --pipeline.medium.backend triplane or voxel, or leave --pipeline.medium-{flag} at 0",
+                )
         return medium
 
     def _light_verdict(self, max_steps: int) -> LightIsotropy:
@@ -647,8 +655,11 @@ class GaussianPipeline(Pipeline):
         return 1 if step < self.freeze_step else 2
 
     def _band_limit(self, step: int) -> float:
-        """The coarse-to-fine blur of the medium's grid at ``step`` (cells)."""
+        """The blur of the medium's grid at ``step`` (cells): coarse-to-fine in Stage I, the freeze
+        blur in Stage II."""
         cfg = self.config
+        if self.stage_at(step) == 2:
+            return cfg.medium_freeze_blur
         end = self.hold_steps + round(cfg.medium_coarse_fraction * (self.freeze_step - self.hold_steps))
         return coarse_to_fine_sigma(step, self.hold_steps, end, cfg.medium_coarse_to_fine)
 
@@ -669,7 +680,7 @@ class GaussianPipeline(Pipeline):
         if self.light_colour.due(step):
             self._fit_light_colour()
         self.medium.set_trainable(self._medium_trainable(step), self.model)
-        if cfg.medium_coarse_to_fine > 0 and self.medium.band_limits:
+        if (cfg.medium_coarse_to_fine > 0 or cfg.medium_freeze_blur > 0) and self.medium.band_limits:
             self.medium.set_band_limit(self._band_limit(step))
         idx = dm.train_index(step)
         target = self.training_target(idx)  # [H, W, 3]

@@ -129,3 +129,34 @@ def test_pipeline_refuses_the_blur_on_a_medium_without_a_grid(tmp_path):
             "--pipeline.medium-coarse-to-fine",
             "2",
         )
+
+
+def test_the_freeze_blur_holds_from_the_freeze_and_comes_back_with_a_checkpoint(tmp_path):
+    from tests.tiny_scenes import tiny_hazy_scene, tiny_pipeline
+
+    scene = tiny_hazy_scene(tmp_path / "s", layout="street", haze="patchy", seed=4)
+    p = tiny_pipeline(scene, tmp_path / "on", "--pipeline.medium-freeze-blur", "1.5", max_steps=200)
+    freeze = p.freeze_step
+    p.train_loss(freeze - 1)
+    assert float(p.medium.band_sigma) == 0.0  # Stage I learns unblurred
+    beta_sharp = p.medium(*_probe_points(p)).beta.detach()
+    p.train_loss(freeze)
+    assert float(p.medium.band_sigma) == pytest.approx(1.5)
+    beta_blurred = p.medium(*_probe_points(p)).beta.detach()
+    assert not torch.allclose(beta_sharp, beta_blurred)  # the lookup is low-passed
+    p.train_loss(freeze + 5)
+    assert float(p.medium.band_sigma) == pytest.approx(1.5)
+    resumed = tiny_pipeline(scene, tmp_path / "again", "--pipeline.medium-freeze-blur", "1.5", max_steps=200)
+    resumed.load_state_dict(p.state_dict())
+    assert float(resumed.medium.band_sigma) == pytest.approx(1.5)  # renders after training see it
+    with pytest.raises(ConfigError, match="freeze-blur"):
+        tiny_pipeline(
+            scene, tmp_path / "mlp", "--pipeline.medium.backend", "mlp", "--pipeline.medium-freeze-blur", "1"
+        )
+
+
+def _probe_points(p) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points [P, 3] spread over the medium's box and view directions [P, 3]."""
+    gen = torch.Generator().manual_seed(0)
+    x = p.medium.bounds_center + (torch.rand(256, 3, generator=gen) * 2 - 1) * p.medium.bounds_half
+    return x, torch.nn.functional.normalize(torch.randn(256, 3, generator=gen), dim=-1)
