@@ -218,7 +218,8 @@ class MediumField(nn.Module):
     ``gaussian-bound`` which renders through the rasterizer instead); ``has_medium`` False means
     there is no medium at all (plain 3DGS); ``renders_with_gaussians`` True means the medium lives
     on the scene's Gaussians (:meth:`attach`, :meth:`render_view`); ``recolours_light`` True means
-    its light takes a per-channel factor (:meth:`recolour_light`); ``band_limits`` True means its
+    its light takes a per-channel factor (:meth:`recolour_light`) or one value
+    (:meth:`flatten_light`); ``band_limits`` True means its
     features live on a grid that :meth:`set_band_limit` can low-pass (coarse-to-fine).
     """
 
@@ -265,6 +266,11 @@ class MediumField(nn.Module):
     @torch.no_grad()
     def initialize(self, beta: float, light: Tensor) -> None:  # noqa: B027 - optional
         """Set the field to a uniform extinction ``beta`` and light ``light`` [3] (data-driven init)."""
+
+    def flatten_light(self, light: Tensor) -> None:
+        """Give every point and direction the one light ``light`` [3] from now on (a run judged one
+        light, at the freeze). Only where ``recolours_light`` (the same heads carry both)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot flatten its light")
 
     def recolour_light(self, gain: Tensor) -> None:
         """Multiply the medium's light by ``gain`` [3] per channel from now on (the light colour
@@ -366,6 +372,9 @@ class MediumHeads(nn.Module):
         self.log_kappa = nn.Parameter(torch.zeros(()))
         self.register_buffer("light_gain", torch.ones(3))  # [3] per-channel factor on the light
         self._recoloured = False  # light_gain read once, not at every call
+        # [3] one light for every point and direction once set (:meth:`flatten`); negative: not set
+        self.register_buffer("flat_light", torch.full((3,), -1.0))
+        self._flat = False
         with torch.no_grad():  # near-uniform start: the last layers barely see the features
             for head in (self.beta_head, self.light_head):
                 head[-1].weight.mul_(0.01)
@@ -378,6 +387,8 @@ class MediumHeads(nn.Module):
             head[-1].bias.zero_()
         self.light_gain.fill_(1.0)
         self._recoloured = False
+        self.flat_light.fill_(-1.0)
+        self._flat = False
         # beta = kappa * softplus(0) = kappa * ln 2
         self.log_kappa.fill_(math.log(max(beta, 1e-8) / math.log(2.0)))
         logit = torch.logit(light.float().clamp(0.02, 0.98))
@@ -424,6 +435,8 @@ class MediumHeads(nn.Module):
     def light(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> Tensor:
         """feat [P, F] (only its dtype is read for a ``global`` light, and P then may be any
         count matching dirs), dirs [P, 3] unit, coords [P, 3] (``smooth`` only) -> light [P, 3]."""
+        if self._flat:
+            return self.flat_light.to(feat)[None].expand(dirs.shape[0], -1)
         if self.light_space == "global" and self.light_mode in ("sh", "rgb"):
             # one input for every point: evaluate the head once
             raw = self.light_head(self.light_feature.to(feat))[None].expand(dirs.shape[0], -1)
@@ -441,11 +454,19 @@ class MediumHeads(nn.Module):
         self.light_gain.mul_(gain.to(self.light_gain))
         self._recoloured = True
 
+    @torch.no_grad()
+    def flatten(self, light: Tensor) -> None:
+        """Give every point and direction the light ``light`` [3] from now on."""
+        self.flat_light.copy_(light.to(self.flat_light).clamp(0.0, 1.0))
+        self._flat = True
+
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
         # checkpoints from before the light colour fit: the light as the head gives it
         state_dict.setdefault(prefix + "light_gain", torch.ones_like(self.light_gain))
+        state_dict.setdefault(prefix + "flat_light", torch.full_like(self.flat_light, -1.0))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._recoloured = bool((self.light_gain != 1.0).any())
+        self._flat = bool((self.flat_light >= 0.0).all())
 
     def forward(self, feat: Tensor, dirs: Tensor, coords: Tensor | None = None) -> MediumSample:
         """feat: [P, F], dirs: [P, 3] unit, coords: [P, 3] box coordinates (``smooth`` light only)

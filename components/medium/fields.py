@@ -69,6 +69,9 @@ class HeadedField(MediumField):
     def recolour_light(self, gain: Tensor) -> None:
         self.heads.recolour(gain)
 
+    def flatten_light(self, light: Tensor) -> None:
+        self.heads.flatten(light)
+
 
 class GridField(HeadedField):
     """A headed field whose features live on a grid (``features`` [B, C, *S]), read through an

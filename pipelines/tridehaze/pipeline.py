@@ -42,6 +42,7 @@ from pipelines.engine.metrics import psnr
 from pipelines.tridehaze.floater_pruning import FloaterPruning, rendered_surface, surface_views, true_surface
 from pipelines.tridehaze.ground_seeds import ground_seeds
 from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
+from pipelines.tridehaze.light_flattening import LightFlattening
 from pipelines.tridehaze.light_isotropy import LightIsotropy
 from pipelines.tridehaze.medium_transplant import load_medium, load_verdict
 from pipelines.tridehaze.priors import (
@@ -205,6 +206,11 @@ class GaussianPipelineConfig(PipelineConfig):
     within about 1 % of each other and five generated scenes sit at 2.5-3.5 %, so the step moved
     one of them by 2 dB between seeds (docs/results/medium_recovery.md, session 57). The clean
     render's fill (``composite.clean-fill auto``) still follows the threshold. None: the step."""
+    flatten_one_light: bool = False
+    """At the freeze, where the run was judged one light (``light-isotropy-cv``), replace the
+    medium's light by its mean over the training pixels for every ray: the verdict says the light
+    is one, but the learnt light keeps a direction dependence that gives each view its own
+    in-scattering error (pipelines/tridehaze/light_flattening.py). False: the light as learnt."""
     light_seen_share: Annotated[float, Range(0.0, 1.0)] = 1.0
     """A run judged one light keeps the weak dark-channel weight where more than this share of the
     verdict window's pixels render as opaque haze (T under ``light-seen-level``): there the photos
@@ -526,11 +532,7 @@ class GaussianPipeline(Pipeline):
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.floater_pruning = FloaterPruning.from_config(config)
         self.register_buffer("densify_plateau", self.densifier.plateau)  # resumes the growth decision
-        self.light_isotropy = self._light_verdict(max_steps).to(datamanager.device)
-        self.light_colour = LightColourFit(
-            config.light_colour_fit and self.medium.has_medium and config.medium_from is None,
-            self.freeze_step,
-        )
+        self._build_light_steps(max_steps)
         self._photometric: Tensor | None = None
         self.register_buffer(
             "background", torch.tensor(config.background, dtype=torch.float32, device=datamanager.device)
@@ -541,6 +543,18 @@ class GaussianPipeline(Pipeline):
         self._last: RasterizeOutput | None = None
         self._true_depth: dict[int, Tensor] = {}  # the true-depth diagnoses: the maps read so far
         self._dens_weight: Tensor | None = None
+
+    def _build_light_steps(self, max_steps: int) -> None:
+        """What is decided about the medium's light during the run: the one-light verdict, the
+        colour fit and the flattening at the freeze."""
+        cfg = self.config
+        self.light_isotropy = self._light_verdict(max_steps).to(self.datamanager.device)
+        self.light_colour = LightColourFit(
+            cfg.light_colour_fit and self.medium.has_medium and cfg.medium_from is None, self.freeze_step
+        )
+        self.light_flat = LightFlattening(
+            cfg.flatten_one_light and self.medium.recolours_light, self.freeze_step
+        )
 
     def _build_medium(self, bounds: FieldBounds) -> MediumField:
         """The medium field in ``bounds``, on the data's device; refuses a coarse-to-fine schedule
@@ -679,6 +693,8 @@ class GaussianPipeline(Pipeline):
         self.stage.fill_(stage)
         if self.light_colour.due(step):
             self._fit_light_colour()
+        if self.light_flat.due(step):
+            self._flatten_light()
         self.medium.set_trainable(self._medium_trainable(step), self.model)
         if (cfg.medium_coarse_to_fine > 0 or cfg.medium_freeze_blur > 0) and self.medium.band_limits:
             self.medium.set_band_limit(self._band_limit(step))
@@ -742,6 +758,23 @@ class GaussianPipeline(Pipeline):
         )
         if gain is not None:
             self.medium.recolour_light(gain)
+
+    @torch.no_grad()
+    def _flatten_light(self) -> None:
+        """Give the medium one light, its mean over the training pixels (once, at the freeze)."""
+        lights = []
+        for i in self.datamanager.train_indices:
+            cam = self.datamanager.camera(i)
+            med = self._medium(cam, self._rasterize(cam, None, self.background))
+            lights.append(ray_light(med.pixel_transmittance()[..., 0].cpu(), med.scattering.cpu()))  # [P, 3]
+        means = [x.mean(dim=0) for x in lights if len(x)]  # the mean light of each view
+        light = self.light_flat.decide(
+            self.light_isotropy.judged_one_light(),
+            torch.stack(means).mean(dim=0) if means else None,
+            light_spread(lights),
+        )
+        if light is not None:
+            self.medium.flatten_light(light)
 
     def _scene_priors(
         self, cam: Cameras, depth: Tensor, target: Tensor, prior: ViewPrior | None, metrics: dict
@@ -1026,7 +1059,9 @@ class GaussianPipeline(Pipeline):
 
     def pop_decisions(self) -> list[str | Decision]:
         out = self.densifier.decisions + self.light_isotropy.decisions + self.light_colour.decisions
+        out += self.light_flat.decisions
         self.densifier.decisions, self.light_isotropy.decisions, self.light_colour.decisions = [], [], []
+        self.light_flat.decisions = []
         return out
 
     def _apply(self, fn, *args, **kwargs):  # noqa: ANN001, ANN202

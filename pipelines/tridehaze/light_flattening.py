@@ -1,0 +1,59 @@
+"""One light for a run judged one light, from the freeze on.
+
+The one-light verdict says the medium's light is the same along every ray, yet the learnt light
+keeps a direction dependence (room-uniform: 2.6 % spread against the truth's 1.4 %), and a test
+view looking where it is dimmer gets too little in-scattering: its clean render carries a
+per-view colour offset (session 58). At the freeze the light is replaced by its mean over the
+training pixels, so every view shares one brightness; Stage II refits the Gaussians through it.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from pipelines.engine.contract import Decision
+
+
+class LightFlattening(nn.Module):
+    """Flattens the light once, at the freeze, where the run was judged one light. ``done`` is a
+    buffer, so a resumed run does not flatten again (the flat light itself is the medium's)."""
+
+    def __init__(self, enabled: bool, step: int) -> None:
+        super().__init__()
+        self.enabled, self.step = enabled, step
+        self.register_buffer("done", torch.tensor(False))
+        self.decisions: list[str | Decision] = []
+        self._done: bool | None = None  # the buffer read once, not at every step
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
+        # checkpoints from before this module: not flattened yet
+        state_dict.setdefault(prefix + "done", self.done.clone())
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._done = None
+
+    def due(self, step: int) -> bool:
+        if not self.enabled or step < self.step:
+            return False
+        if self._done is None:
+            self._done = bool(self.done)
+        return not self._done
+
+    def decide(self, one_light: bool, mean_light: Tensor | None, spread: float | None) -> Tensor | None:
+        """The light [3] to flatten to (the medium's mean per-ray light ``mean_light``), or None
+        where the run is not one light or nothing measured it; says which once."""
+        self.done.fill_(True)
+        self._done = True
+        if not one_light or mean_light is None:
+            why = "not judged one light" if not one_light else "no pixel has enough haze to read the light on"
+            self.decisions.append(Decision(f"light kept direction-dependent: {why}", {"flat_light": None}))
+            return None
+        rgb = ", ".join(f"{v:.3f}" for v in mean_light.tolist())
+        spread_text = "" if spread is None else f" (it varied by {spread:.1%} over the training pixels)"
+        self.decisions.append(
+            Decision(
+                f"one light: the medium's light set to its mean ({rgb}) for every ray{spread_text}",
+                {"flat_light": mean_light.tolist(), "light_spread_before": spread},
+            )
+        )
+        return mean_light
