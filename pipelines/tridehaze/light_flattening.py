@@ -5,6 +5,7 @@ keeps a direction dependence (room-uniform: 2.6 % spread against the truth's 1.4
 view looking where it is dimmer gets too little in-scattering: its clean render carries a
 per-view colour offset (session 58). At the freeze the light is replaced by its mean over the
 training pixels, so every view shares one brightness; Stage II refits the Gaussians through it.
+Where opaque haze shows the light itself, its direction dependence is observed and stays.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ class LightFlattening(nn.Module):
     """Flattens the light once, at the freeze, where the run was judged one light. ``done`` is a
     buffer, so a resumed run does not flatten again (the flat light itself is the medium's)."""
 
-    def __init__(self, enabled: bool, step: int) -> None:
+    def __init__(self, enabled: bool, step: int, seen_share: float = 1.0) -> None:
         super().__init__()
-        self.enabled, self.step = enabled, step
+        self.enabled, self.step, self.seen_share = enabled, step, seen_share
         self.register_buffer("done", torch.tensor(False))
         self.decisions: list[str | Decision] = []
         self._done: bool | None = None  # the buffer read once, not at every step
@@ -39,13 +40,22 @@ class LightFlattening(nn.Module):
             self._done = bool(self.done)
         return not self._done
 
-    def decide(self, one_light: bool, mean_light: Tensor | None, spread: float | None) -> Tensor | None:
+    def decide(
+        self, one_light: bool, seen: float | None, mean_light: Tensor | None, spread: float | None
+    ) -> Tensor | None:
         """The light [3] to flatten to (the medium's mean per-ray light ``mean_light``), or None
-        where the run is not one light or nothing measured it; says which once."""
+        where the run is not one light, its opaque pixels (share ``seen`` of the verdict window's)
+        show the light, or nothing measured it; says which once."""
         self.done.fill_(True)
         self._done = True
-        if not one_light or mean_light is None:
-            why = "not judged one light" if not one_light else "no pixel has enough haze to read the light on"
+        why = None
+        if not one_light:
+            why = "not judged one light"
+        elif seen is not None and seen > self.seen_share:
+            why = f"{seen:.0%} of the pixels see it through opaque haze (over {self.seen_share:.0%})"
+        elif mean_light is None:
+            why = "no pixel has enough haze to read the light on"
+        if why is not None:
             self.decisions.append(Decision(f"light kept direction-dependent: {why}", {"flat_light": None}))
             return None
         rgb = ", ".join(f"{v:.3f}" for v in mean_light.tolist())

@@ -211,6 +211,11 @@ class GaussianPipelineConfig(PipelineConfig):
     medium's light by its mean over the training pixels for every ray: the verdict says the light
     is one, but the learnt light keeps a direction dependence that gives each view its own
     in-scattering error (pipelines/tridehaze/light_flattening.py). False: the light as learnt."""
+    flatten_seen_share: Annotated[float, Range(0.0, 1.0)] = 0.2
+    """``flatten-one-light`` keeps the learnt light where more than this share of the verdict
+    window's pixels rendered opaque haze (T under ``light-seen-level``): those pixels show the
+    light itself in their directions, so its direction dependence is observed, not left free
+    (courtyard-dense under an open sky, session 58). 1.0: flatten every one-light run."""
     light_seen_share: Annotated[float, Range(0.0, 1.0)] = 1.0
     """A run judged one light keeps the weak dark-channel weight where more than this share of the
     verdict window's pixels render as opaque haze (T under ``light-seen-level``): there the photos
@@ -768,8 +773,10 @@ class GaussianPipeline(Pipeline):
             med = self._medium(cam, self._rasterize(cam, None, self.background))
             lights.append(ray_light(med.pixel_transmittance()[..., 0].cpu(), med.scattering.cpu()))  # [P, 3]
         means = [x.mean(dim=0) for x in lights if len(x)]  # the mean light of each view
+        iso = self.light_isotropy
         light = self.light_flat.decide(
-            self.light_isotropy.judged_one_light(),
+            iso.judged_one_light(),
+            iso.seen_light_share() if iso.judged_one_light() else None,
             torch.stack(means).mean(dim=0) if means else None,
             light_spread(lights),
         )

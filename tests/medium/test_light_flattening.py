@@ -56,10 +56,13 @@ def test_fields_without_heads_cannot_flatten():
 def test_the_decision_is_taken_once_and_says_why():
     flat = LightFlattening(True, step=10)
     assert not flat.due(9) and flat.due(10)
-    assert flat.decide(False, torch.ones(3), 0.05) is None and not flat.due(11)
+    assert flat.decide(False, None, torch.ones(3), 0.05) is None and not flat.due(11)
     assert "not judged one light" in flat.decisions[0].message
-    other = LightFlattening(True, step=10)
-    light = other.decide(True, torch.tensor([0.5, 0.6, 0.7]), 0.02)
+    seen = LightFlattening(True, step=10, seen_share=0.2)
+    assert seen.decide(True, 0.45, torch.ones(3), 0.02) is None  # opaque haze shows the light
+    assert "45% of the pixels see it through opaque haze" in seen.decisions[0].message
+    other = LightFlattening(True, step=10, seen_share=0.2)
+    light = other.decide(True, 0.01, torch.tensor([0.5, 0.6, 0.7]), 0.02)
     torch.testing.assert_close(light, torch.tensor([0.5, 0.6, 0.7]))
     assert other.decisions[0].data["flat_light"] == pytest.approx([0.5, 0.6, 0.7])
     json.dumps(other.decisions[0].data, allow_nan=False)
