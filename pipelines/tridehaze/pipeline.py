@@ -558,7 +558,7 @@ class GaussianPipeline(Pipeline):
             cfg.light_colour_fit and self.medium.has_medium and cfg.medium_from is None, self.freeze_step
         )
         self.light_flat = LightFlattening(
-            cfg.flatten_one_light and self.medium.recolours_light, self.freeze_step
+            cfg.flatten_one_light and self.medium.recolours_light, self.freeze_step, cfg.flatten_seen_share
         )
 
     def _build_medium(self, bounds: FieldBounds) -> MediumField:

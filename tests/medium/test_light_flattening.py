@@ -93,6 +93,7 @@ def test_a_run_judged_one_light_trains_on_with_one_light(tmp_path):
     trainer.train()
     pipe = trainer.pipeline
     assert pipe.light_isotropy.judged_one_light()
+    assert pipe.light_flat.seen_share == pipe.config.flatten_seen_share == 0.2  # the gate is wired
     lines = [json.loads(x) for x in (trainer.run_dir / "logs" / "decisions.jsonl").read_text().splitlines()]
     flat = [x for x in lines if "flat_light" in x]
     assert len(flat) == 1 and flat[0]["flat_light"] is not None and flat[0]["step"] >= pipe.freeze_step
