@@ -16,8 +16,8 @@ def tiny_hazy_scene(root: Path, **overrides) -> Path:
     return root
 
 
-def tiny_pipeline(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40):
-    """The set-up ``tri-dehaze`` pipeline of a short CPU run on ``scene`` (torch rasterizer, one
+def tiny_trainer(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40):
+    """The set-up ``tri-dehaze`` trainer of a short CPU run on ``scene`` (torch rasterizer, one
     thread, no evaluation), with ``extra`` command-line options; nothing trained yet."""
     from rich.console import Console
 
@@ -31,4 +31,9 @@ def tiny_pipeline(scene: Path, output_dir: Path, *extra: str, max_steps: int = 4
     ])  # fmt: skip
     trainer = Trainer(cfg, console=Console(quiet=True))
     trainer.setup()
-    return trainer.pipeline
+    return trainer
+
+
+def tiny_pipeline(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40):
+    """The set-up pipeline of :func:`tiny_trainer`."""
+    return tiny_trainer(scene, output_dir, *extra, max_steps=max_steps).pipeline

@@ -16,9 +16,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from pipelines.engine.contract import Decision
+from pipelines.tridehaze.once_at_step import OnceAtStep
 
 MIN_VIEWS = 3
 """Points seen by fewer training views say too little about how their colour changes with haze."""
@@ -115,38 +116,14 @@ def light_spread(lights: list[Tensor]) -> float | None:
     return float(lum.std(unbiased=False) / lum.mean().clamp_min(1e-6))
 
 
-class LightColourFit(nn.Module):
-    """Makes the fit once, at the freeze, and says what it did. ``done`` is a buffer, so a run
-    resumed after the freeze does not fit again (the gain itself is kept by the medium)."""
-
-    def __init__(self, enabled: bool, step: int) -> None:
-        super().__init__()
-        self.enabled, self.step = enabled, step
-        self.register_buffer("done", torch.tensor(False))
-        self.decisions: list[str | Decision] = []
-        self._done: bool | None = None  # the buffer read once, not at every step
-
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
-        # checkpoints from before the fit: not made yet
-        state_dict.setdefault(prefix + "done", self.done.clone())
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._done = None
-
-    def due(self, step: int) -> bool:
-        if not self.enabled or step < self.step:
-            return False
-        if self._done is None:
-            self._done = bool(self.done)
-        return not self._done
+class LightColourFit(OnceAtStep):
+    """Makes the fit once, at the freeze, and says what it did (the gain itself is kept by the
+    medium)."""
 
     def skip(self, why: str) -> None:
         """Mark the fit made without applying it, and say why."""
-        self._mark_done()
+        self.mark_done()
         self.decisions.append(Decision(f"light colour fit not applied: {why}", {"light_gain": None}))
-
-    def _mark_done(self) -> None:
-        self.done.fill_(True)
-        self._done = True
 
     def gain(
         self, obs: PointObservations | None, model_light: Tensor | None, spread: float | None
@@ -175,7 +152,7 @@ class LightColourFit(nn.Module):
         if why is not None:
             self.skip(why)
             return None
-        self._mark_done()
+        self.mark_done()
         gain = (chroma(fit.light) / chroma(model_light.float().cpu())).clamp(*GAIN_RANGE)  # [3]
         rgb = ", ".join(f"{g:.3f}" for g in gain.tolist())
         self.decisions.append(

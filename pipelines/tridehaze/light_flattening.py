@@ -10,35 +10,19 @@ Where opaque haze shows the light itself, its direction dependence is observed a
 
 from __future__ import annotations
 
-import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from pipelines.engine.contract import Decision
+from pipelines.tridehaze.once_at_step import OnceAtStep
 
 
-class LightFlattening(nn.Module):
-    """Flattens the light once, at the freeze, where the run was judged one light. ``done`` is a
-    buffer, so a resumed run does not flatten again (the flat light itself is the medium's)."""
+class LightFlattening(OnceAtStep):
+    """Flattens the light once, at the freeze, where the run was judged one light (the flat light
+    itself is the medium's)."""
 
     def __init__(self, enabled: bool, step: int, seen_share: float = 1.0) -> None:
-        super().__init__()
-        self.enabled, self.step, self.seen_share = enabled, step, seen_share
-        self.register_buffer("done", torch.tensor(False))
-        self.decisions: list[str | Decision] = []
-        self._done: bool | None = None  # the buffer read once, not at every step
-
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:  # noqa: ANN001
-        # checkpoints from before this module: not flattened yet
-        state_dict.setdefault(prefix + "done", self.done.clone())
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._done = None
-
-    def due(self, step: int) -> bool:
-        if not self.enabled or step < self.step:
-            return False
-        if self._done is None:
-            self._done = bool(self.done)
-        return not self._done
+        super().__init__(enabled, step)
+        self.seen_share = seen_share
 
     def decide(
         self, one_light: bool, seen: float | None, mean_light: Tensor | None, spread: float | None
@@ -46,8 +30,7 @@ class LightFlattening(nn.Module):
         """The light [3] to flatten to (the medium's mean per-ray light ``mean_light``), or None
         where the run is not one light, its opaque pixels (share ``seen`` of the verdict window's)
         show the light, or nothing measured it; says which once."""
-        self.done.fill_(True)
-        self._done = True
+        self.mark_done()
         why = None
         if not one_light:
             why = "not judged one light"

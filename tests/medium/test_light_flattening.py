@@ -7,13 +7,10 @@ import json
 
 import pytest
 import torch
-from rich.console import Console
 
 from components.medium.base import FieldBounds, MediumConfig
-from pipelines.engine.trainer import Trainer
 from pipelines.tridehaze.light_flattening import LightFlattening
-from tests.tiny_scenes import tiny_hazy_scene
-from tridehaze_plugin.cli.train import parse_args
+from tests.tiny_scenes import tiny_hazy_scene, tiny_trainer
 
 
 def _field():
@@ -72,24 +69,22 @@ def test_the_decision_is_taken_once_and_says_why():
     assert not LightFlattening(False, step=10).due(12)
 
 
-def _trainer(data, out, steps, *extra):
-    argv = [
-        "tri-dehaze", "--data", str(data), "--output-dir", str(out), "--max-steps", str(steps),
-        "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--steps-per-save", "100",
-        "--no-eval-at-end", "--pipeline.medium-hold-fraction", "0", *extra,
-    ]  # fmt: skip
-    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
-    trainer.setup()
-    return trainer
-
-
 def test_a_run_judged_one_light_trains_on_with_one_light(tmp_path):
     scene = tiny_hazy_scene(
         tmp_path / "room", layout="room", haze="uniform", seed=5, num_views=4, test_every=2
     )
-    trainer = _trainer(
-        scene, tmp_path / "run", 8, "--pipeline.flatten-one-light", "--pipeline.light-isotropy-cv", "1.0"
-    )  # every spread counts as one light here
+    trainer = tiny_trainer(
+        scene,
+        tmp_path / "run",
+        "--pipeline.flatten-one-light",
+        "--pipeline.light-isotropy-cv",
+        "1.0",
+        "--pipeline.medium-hold-fraction",
+        "0",
+        "--steps-per-save",
+        "100",
+        max_steps=8,
+    )  # fmt: skip  (every spread counts as one light here)
     trainer.train()
     pipe = trainer.pipeline
     assert pipe.light_isotropy.judged_one_light()
