@@ -15,8 +15,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import torch
-
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
@@ -26,30 +24,23 @@ from sky_split import arm_of, run_label  # noqa: E402
 
 from pipelines.engine.metrics import psnr  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
-from pipelines.tridehaze.light_colour_fit import light_spread, ray_light  # noqa: E402
+from pipelines.tridehaze.light_colour_fit import light_spread, mean_view_light, ray_light  # noqa: E402
 
 T_FLOOR = 0.05
 """The inversion divides by T clamped here (as the medium-recovery protocol's J inversion)."""
 
 
-def _inverted_psnr(pipe, dm) -> list[float]:
-    """Per test view: PSNR of (I - S) / T against the clean reference."""
-    scores = []
+def _test_views(pipe, dm) -> tuple[list[float], list[list[float]]]:
+    """Per test view: the PSNR of (I - S) / T against the clean reference, and the clean render's
+    mean colour minus the reference's [3]."""
+    scores, offsets = [], []
     for idx in dm.test_indices:
         out = pipe.render(dm.camera(idx))
         hazy, clean = dm.hazy_image(idx), dm.clean_image(idx)  # [H, W, 3]
         J = ((hazy - out["scattering"]) / out["transmittance"].clamp_min(T_FLOOR)).clamp(0.0, 1.0)
         scores.append(float(psnr(J, clean)))
-    return scores
-
-
-def _clean_offsets(pipe, dm) -> list[list[float]]:
-    """Per test view: the clean render's mean colour minus the reference's [3]."""
-    offsets = []
-    for idx in dm.test_indices:
-        out = pipe.render(dm.camera(idx))
-        offsets.append((out["clean"] - dm.clean_image(idx)).reshape(-1, 3).mean(dim=0).tolist())
-    return offsets
+        offsets.append((out["clean"] - clean).reshape(-1, 3).mean(dim=0).tolist())
+    return scores, offsets
 
 
 def diagnose(config: Path) -> dict:
@@ -59,13 +50,12 @@ def diagnose(config: Path) -> dict:
     for idx in dm.train_indices:
         out = pipe.render(dm.camera(idx))
         lights.append(ray_light(out["transmittance"][..., 0], out["scattering"]))  # [P, 3]
-    means = [x.mean(dim=0) for x in lights if len(x)]
-    learnt = _inverted_psnr(pipe, dm)
-    offsets = _clean_offsets(pipe, dm)
+    mean = mean_view_light(lights)
+    learnt, offsets = _test_views(pipe, dm)
     flat = None
-    if means and pipe.medium.recolours_light:
-        pipe.medium.flatten_light(torch.stack(means).mean(dim=0))
-        flat = _inverted_psnr(pipe, dm)
+    if mean is not None and pipe.medium.recolours_light:
+        pipe.medium.flatten_light(mean)
+        flat, _ = _test_views(pipe, dm)
     iso = pipe.light_isotropy
     return {
         "run": str(config.parent),

@@ -108,6 +108,13 @@ def mean_ray_light(T: Tensor, S: Tensor) -> Tensor | None:
     return light.mean(dim=0) if len(light) else None
 
 
+def mean_view_light(lights: list[Tensor]) -> Tensor | None:
+    """The mean over views of each view's mean per-ray light ([P, 3] each) [3]; None where no view
+    has a pixel with enough haze."""
+    means = [x.mean(dim=0) for x in lights if len(x)]
+    return torch.stack(means).mean(dim=0) if means else None
+
+
 def light_spread(lights: list[Tensor]) -> float | None:
     """The coefficient of variation of the brightness of per-pixel lights ([P, 3] each)."""
     lum = torch.cat([x.mean(dim=-1) for x in lights]) if lights else torch.zeros(0)  # [P]

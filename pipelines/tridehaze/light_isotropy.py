@@ -102,8 +102,10 @@ class LightIsotropy(nn.Module):
         return self._weight
 
     def raised(self, step: int) -> bool:
-        """Whether the weight at ``step`` is above the weak one (the decision taken, one light)."""
-        return self.weight(step) > self.weak  # takes the decision at its step
+        """Whether the decision taken by ``step`` raised the weight: one light, not seen through
+        opaque haze (the step), or a spread under the ramp's end."""
+        self.weight(step)  # takes the decision at its step
+        return self.measures and step >= self.decision_step and self._raises_weight()
 
     def measured_cv(self) -> float | None:
         """The light's spread the decision was made on; None before the decision or where no
@@ -130,12 +132,26 @@ class LightIsotropy(nn.Module):
         """Whether the decision raises the weight: one light, not seen through opaque haze."""
         return self.judged_one_light() and not self.sees_light() and self.strong > 0.0
 
+    def _ramps(self) -> bool:
+        """Whether the ramp sets the weight (one is given, a spread was measured, a strong weight
+        is set and no opaque haze shows the light); otherwise the step at ``threshold`` does."""
+        return (
+            self.ramp is not None
+            and self.measured_cv() is not None
+            and self.strong > 0.0
+            and not self.sees_light()
+        )
+
+    def _raises_weight(self) -> bool:
+        if self._ramps():
+            return self.measured_cv() < self.ramp[1]
+        return self._raises()
+
     def _decided_weight(self) -> float:
         """The weight the decision sets: the step at ``threshold``, or the ramp's value."""
-        cv = self.measured_cv()
-        if self.ramp is None or cv is None or self.strong <= 0.0 or self.sees_light():
+        if not self._ramps():
             return self.strong if self._raises() else self.weak
-        return ramped_weight(cv, self.ramp, self.weak, self.strong)
+        return ramped_weight(self.measured_cv(), self.ramp, self.weak, self.strong)
 
     def opaque_shares(self) -> dict[str, float]:
         """The share of the window's pixels whose rendered T was under each of ``OPAQUE_LEVELS``."""

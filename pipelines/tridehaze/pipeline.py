@@ -8,6 +8,7 @@ hazy renders coincide; every ablation is a field of this config (docs/medium.md)
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Literal
@@ -41,7 +42,13 @@ from pipelines.engine.medium_recovery import reference_depth
 from pipelines.engine.metrics import psnr
 from pipelines.tridehaze.floater_pruning import FloaterPruning, rendered_surface, surface_views, true_surface
 from pipelines.tridehaze.ground_seeds import ground_seeds
-from pipelines.tridehaze.light_colour_fit import LightColourFit, PointObservations, light_spread, ray_light
+from pipelines.tridehaze.light_colour_fit import (
+    LightColourFit,
+    PointObservations,
+    light_spread,
+    mean_view_light,
+    ray_light,
+)
 from pipelines.tridehaze.light_flattening import LightFlattening
 from pipelines.tridehaze.light_isotropy import LightIsotropy
 from pipelines.tridehaze.medium_transplant import load_medium, load_verdict
@@ -696,10 +703,9 @@ class GaussianPipeline(Pipeline):
         cfg, dm = self.config, self.datamanager
         stage = self.stage_at(step)
         self.stage.fill_(stage)
-        if self.light_colour.due(step):
-            self._fit_light_colour()
+        lights = self._fit_light_colour() if self.light_colour.due(step) else None
         if self.light_flat.due(step):
-            self._flatten_light()
+            self._flatten_light(lights)
         self.medium.set_trainable(self._medium_trainable(step), self.model)
         if (cfg.medium_coarse_to_fine > 0 or cfg.medium_freeze_blur > 0) and self.medium.band_limits:
             self.medium.set_band_limit(self._band_limit(step))
@@ -737,48 +743,48 @@ class GaussianPipeline(Pipeline):
         metrics["psnr"] = psnr(hazy.detach(), target)
         return StepResult(loss=loss, metrics=metrics)
 
+    def _training_view_media(self) -> Iterator[tuple[int, Cameras, Tensor, Tensor]]:
+        """Each training view's index, camera, rendered T [H, W] and S [H, W, 3] on the CPU (what the
+        decisions taken at the freeze read)."""
+        for i in self.datamanager.train_indices:
+            cam = self.datamanager.camera(i)
+            med = self._medium(cam, self._rasterize(cam, None, self.background))
+            yield i, cam, med.pixel_transmittance()[..., 0].cpu(), med.scattering.cpu()
+
     @torch.no_grad()
-    def _fit_light_colour(self) -> None:
-        """Recolour the medium's light by the fit over the training views (once, at the freeze)."""
+    def _fit_light_colour(self) -> list[Tensor] | None:
+        """Recolour the medium's light by the fit over the training views (once, at the freeze);
+        returns each view's per-ray light [P, 3] as the recoloured light gives it (None where the
+        medium has no light to recolour)."""
         if not self.medium.recolours_light:
             self.light_colour.skip(f"the {self.config.medium.backend} medium has no light to recolour")
-            return
+            return None
         dm, points = self.datamanager, self.datamanager.scene.points
         pts = None if points is None else points.detach().float().cpu()
         ids, colours, ts, lights = [], [], [], []
-        for i in dm.train_indices:
-            cam = dm.camera(i)
-            med = self._medium(cam, self._rasterize(cam, None, self.background))
-            T = med.pixel_transmittance()[..., 0].cpu()  # [H, W]
-            lights.append(ray_light(T, med.scattering.cpu()))  # [P, 3]
+        for i, cam, T, S in self._training_view_media():
+            lights.append(ray_light(T, S))  # [P, 3]
             if pts is not None and len(pts):
                 vis = visible_points(cam, pts)
                 ids.append(vis.mask.nonzero()[:, 0])
                 colours.append(dm.image(i).cpu()[vis.v, vis.u].float())
                 ts.append(T[vis.v, vis.u])
         obs = PointObservations(torch.cat(ids), torch.cat(colours), torch.cat(ts)) if ids else None
-        means = [x.mean(dim=0) for x in lights if len(x)]  # the mean light of each view
-        gain = self.light_colour.gain(
-            obs, torch.stack(means).mean(dim=0) if means else None, light_spread(lights)
-        )
-        if gain is not None:
-            self.medium.recolour_light(gain)
+        gain = self.light_colour.gain(obs, mean_view_light(lights), light_spread(lights))
+        if gain is None:
+            return lights
+        self.medium.recolour_light(gain)
+        return [x * gain.to(x) for x in lights]  # S is linear in the light
 
     @torch.no_grad()
-    def _flatten_light(self) -> None:
-        """Give the medium one light, its mean over the training pixels (once, at the freeze)."""
-        lights = []
-        for i in self.datamanager.train_indices:
-            cam = self.datamanager.camera(i)
-            med = self._medium(cam, self._rasterize(cam, None, self.background))
-            lights.append(ray_light(med.pixel_transmittance()[..., 0].cpu(), med.scattering.cpu()))  # [P, 3]
-        means = [x.mean(dim=0) for x in lights if len(x)]  # the mean light of each view
+    def _flatten_light(self, lights: list[Tensor] | None) -> None:
+        """Give the medium one light, its mean over the training pixels (once, at the freeze);
+        ``lights``: each view's per-ray light where the colour fit has just rendered them."""
+        if lights is None:
+            lights = [ray_light(T, S) for _, _, T, S in self._training_view_media()]  # [P, 3] each
         iso = self.light_isotropy
         light = self.light_flat.decide(
-            iso.judged_one_light(),
-            iso.seen_light_share() if iso.judged_one_light() else None,
-            torch.stack(means).mean(dim=0) if means else None,
-            light_spread(lights),
+            iso.judged_one_light(), iso.seen_light_share(), mean_view_light(lights), light_spread(lights)
         )
         if light is not None:
             self.medium.flatten_light(light)
@@ -1065,10 +1071,10 @@ class GaussianPipeline(Pipeline):
         return self.medium
 
     def pop_decisions(self) -> list[str | Decision]:
-        out = self.densifier.decisions + self.light_isotropy.decisions + self.light_colour.decisions
-        out += self.light_flat.decisions
-        self.densifier.decisions, self.light_isotropy.decisions, self.light_colour.decisions = [], [], []
-        self.light_flat.decisions = []
+        out: list[str | Decision] = []
+        for part in (self.densifier, self.light_isotropy, self.light_colour, self.light_flat):
+            out += part.decisions
+            part.decisions = []
         return out
 
     def _apply(self, fn, *args, **kwargs):  # noqa: ANN001, ANN202
