@@ -33,13 +33,25 @@ def test_smooth_and_fine_errors_are_told_apart(monkeypatch):
     assert cast["seen"] is None and cast["t_bias_seen"] is None
 
 
+def test_a_cast_shared_by_every_view_is_taken_out(monkeypatch):
+    mod = load_benchmark(monkeypatch, "error_scales")
+    rng = np.random.default_rng(1)
+    shared = np.array([0.1, -0.05, 0.02], np.float32)
+    noise = [rng.normal(0.0, 0.01, (20, 30, 3)).astype(np.float32) for _ in range(3)]
+    before = [mod._psnr(n + shared) for n in noise]
+    after = mod.cast_removed([n + shared for n in noise])
+    assert all(a > b + 15.0 for a, b in zip(after, before, strict=True))
+    assert all(abs(a - mod._psnr(n)) < 0.1 for a, n in zip(after, noise, strict=True))
+    assert mod.cast_removed([]) == []
+
+
 def test_on_a_tiny_field_run(tmp_path):
     _, config, _ = tiny_field_run(tmp_path)
     out = tmp_path / "scales"
     row = run_diagnosis("error_scales.py", [config], out)
     assert len(row["views"]) > 0
     m = row["mean"]
-    assert all(math.isfinite(m[k]) for k in ("psnr", "fine_4", "fine_8", "fine_16", "affine"))
+    assert all(math.isfinite(m[k]) for k in ("psnr", "fine_4", "fine_8", "fine_16", "affine", "run_cast"))
     assert m["hidden_share"] is not None and 0.0 <= m["hidden_share"] <= 1.0
     assert "error finer than" in out.with_suffix(".md").read_text()
     assert out.with_suffix(".png").stat().st_size > 0
