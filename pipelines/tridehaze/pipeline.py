@@ -266,10 +266,11 @@ class GaussianPipelineConfig(PipelineConfig):
     frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
     0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py). Measured
     -0.03 / -0.03 dB (seeds 42 / 7), the drift unchanged: it is not the composite's gradient (session 53)."""
-    medium_start: Literal["dark-channel", "reference"] = "dark-channel"
+    medium_start: Literal["dark-channel", "reference", "reference-mean"] = "dark-channel"
     """Where the trainable medium starts: the dark channel's estimate, or ``reference`` (a diagnosis
     on td-synth data, never a method): fitted to the generator's true medium before training, to
-    see whether training keeps it (pipelines/tridehaze/reference_start.py)."""
+    see whether training keeps it (pipelines/tridehaze/reference_start.py); ``reference-mean``: to
+    its mean over the box, one extinction and one light (the right amount, not the layout)."""
     march_to: Literal["rendered", "true-depth"] = "rendered"
     """Where the training rays' march through the medium ends: the Gaussians' rendered depth, or
     ``true-depth`` (a diagnosis on td-synth data, never a method): each training view's true depth
@@ -384,10 +385,10 @@ class GaussianPipelineConfig(PipelineConfig):
             raise ConfigError(
                 "--pipeline.freeze-fraction and --pipeline.medium-hold-fraction must be in [0, 1]"
             )
-        if self.medium_start == "reference" and self.medium_from is not None:
+        if self.medium_start != "dark-channel" and self.medium_from is not None:
             raise ConfigError(
-                "--pipeline.medium-start reference and --pipeline.medium-from both replace the medium's "
-                "start: the checkpoint's medium would overwrite the reference fit",
+                f"--pipeline.medium-start {self.medium_start} and --pipeline.medium-from both replace the "
+                "medium's start: the checkpoint's medium would overwrite the reference fit",
                 fix="give only one of them",
             )
 
@@ -635,8 +636,9 @@ class GaussianPipeline(Pipeline):
         cfg, scene = self.config, self.datamanager.scene
         if not self.medium.has_medium:
             return
-        if cfg.medium_start == "reference" and training:
-            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed))
+        if cfg.medium_start != "dark-channel" and training:
+            flat = cfg.medium_start == "reference-mean"
+            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed, flat))
         if cfg.medium_from is not None:
             self.init_info["medium_from_step"] = load_medium(self.medium, cfg.medium_from)
 

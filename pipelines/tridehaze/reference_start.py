@@ -1,7 +1,9 @@
 """Start a trainable medium at the generator's true one (a diagnosis on td-synth data, never a
 method): does training keep the true medium, or does it leave it for the one it ends at from the
 dark channel's start? The first says the objective is right and the start is the lever; the
-second says the losses prefer a wrong medium (docs/results/medium_recovery.md, session 55)."""
+second says the losses prefer a wrong medium (docs/results/medium_recovery.md, session 55). With
+``flat``, the start is the true medium's box mean: one extinction and one light for every point and
+direction, so its amount and light are right but not its layout (session 59)."""
 
 from __future__ import annotations
 
@@ -21,14 +23,17 @@ POINTS = 8192
 
 
 def fit_to_reference(
-    field: MediumField, root: Path, transform: SceneTransform, seed: int = 0
+    field: MediumField, root: Path, transform: SceneTransform, seed: int = 0, flat: bool = False
 ) -> dict[str, float]:
     """Fit ``field``'s extinction (in log) and light to the generator's medium of the dataset at
-    ``root``, at uniform points of the field's box with uniform directions; returns the fit's
-    final relative extinction error and light error (means over a fresh sample)."""
+    ``root`` (``flat``: to its mean over the box), at uniform points of the field's box with uniform
+    directions; returns the fit's final relative extinction error and light error (means over a
+    fresh sample, against what was fitted)."""
     truth = true_medium(field.config, field.bounds, root, transform)
     gen = torch.Generator().manual_seed(seed)  # the run's own random stream is left as it was
     device = field.bounds_center.device
+    if flat:
+        truth = _box_mean(truth, *_sample(field, gen, device))
     params = [p for p, _ in field.param_groups().values()]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(STEPS):
@@ -46,6 +51,24 @@ def fit_to_reference(
         beta_err = float(_log_error(got.beta, want.beta).abs().mean())
         light_err = float((got.light - want.light).abs().mean())
     return {"reference_start_log_beta_mae": beta_err, "reference_start_light_mae": light_err}
+
+
+class _Uniform:
+    """A medium with one extinction and one light everywhere (called like a medium field)."""
+
+    def __init__(self, beta: Tensor, light: Tensor) -> None:
+        self.beta, self.light = beta, light  # [*S], [3]
+
+    def __call__(self, x: Tensor, d: Tensor) -> _Uniform:
+        n = x.shape[0]
+        return _Uniform(self.beta.expand(n, *self.beta.shape), self.light.expand(n, 3))
+
+
+def _box_mean(truth, x: Tensor, d: Tensor) -> _Uniform:  # noqa: ANN001 - a medium field
+    """The medium ``truth``'s mean extinction and light over the points x [P, 3], directions d [P, 3]."""
+    with torch.no_grad():
+        got = truth(x, d)
+        return _Uniform(got.beta.mean(dim=0), got.light.mean(dim=0))
 
 
 def _sample(field: MediumField, gen: torch.Generator, device: torch.device) -> tuple[Tensor, Tensor]:

@@ -1,5 +1,6 @@
 """Three diagnoses on td-synth data that read the generator's answer (never methods):
-``--pipeline.medium-start reference`` starts the trainable medium fitted to the true medium,
+``--pipeline.medium-start reference`` starts the trainable medium fitted to the true medium (or
+``reference-mean``, to its mean over the box),
 ``--pipeline.march-to true-depth`` ends the training rays' march at the true depth, and
 ``--pipeline.medium-learns-from true-depth`` lets the medium learn only from pixels whose rendered
 depth is right."""
@@ -61,6 +62,23 @@ def test_reference_start_fits_the_true_medium(scene, tmp_path):
     err = _log_beta_error(fitted.pipeline.medium, scene, fitted)
     dark = _trainer(scene, tmp_path / "b")  # the dark channel's uniform start
     assert err < 0.1 < _log_beta_error(dark.pipeline.medium, scene, dark)
+
+
+def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
+    fitted = _trainer(scene, tmp_path / "m", "--pipeline.medium-start", "reference-mean")
+    field = fitted.pipeline.medium
+    truth = true_medium(field.config, field.bounds, scene, fitted.datamanager.scene.transform)
+    gen = torch.Generator().manual_seed(2)
+    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
+    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
+    with torch.no_grad():
+        got, want = field(x, d), truth(x, d)
+    beta = got.beta.clamp_min(1e-9)
+    assert float(beta.std() / beta.mean()) < 0.05  # one extinction everywhere
+    assert float(want.beta.std() / want.beta.mean()) > 0.2  # the patchy truth is not
+    assert abs(float(beta.mean() / want.beta.mean()) - 1.0) < 0.1  # at the true mean
+    assert (got.light.mean(0) - want.light.mean(0)).abs().max() < 0.03
+    assert float(got.light.std(0).max()) < 0.02
 
 
 def test_march_to_true_depth(scene, tmp_path):
