@@ -82,17 +82,18 @@ def diagnose(config: Path) -> dict:
     dm, pipe = run.datamanager, run.pipeline
     views, errors = [], []
     for idx in dm.test_indices:
-        ref = dm.clean_image(idx)
-        if ref is None:
+        clean = dm.clean_image(idx)
+        if clean is None:
             continue
+        ref = clean.cpu().numpy()  # [H, W, 3]
         out = pipe.render(dm.camera(idx))
         pred = out["clean"].clamp(0.0, 1.0).cpu().numpy()  # [H, W, 3]
         size = tuple(pred.shape[:2])
         true_t = reference_map(dm, REFERENCE_T_KEY, idx, size)  # [H, W, 1] or None
         true_t = None if true_t is None else true_t[..., 0].cpu().numpy()
         model_t = out["transmittance"][..., 0].cpu().numpy()
-        views.append(view_scores(pred, ref.cpu().numpy(), true_t, model_t))
-        errors.append(pred - ref.cpu().numpy())  # [H, W, 3]
+        views.append(view_scores(pred, ref, true_t, model_t))
+        errors.append(pred - ref)  # [H, W, 3]
     for view, score in zip(views, cast_removed(errors), strict=True):
         view["run_cast"] = score
     return {
