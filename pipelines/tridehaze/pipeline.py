@@ -266,11 +266,15 @@ class GaussianPipelineConfig(PipelineConfig):
     frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
     0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py). Measured
     -0.03 / -0.03 dB (seeds 42 / 7), the drift unchanged: it is not the composite's gradient (session 53)."""
-    medium_start: Literal["dark-channel", "reference", "reference-mean"] = "dark-channel"
+    medium_start: Literal[
+        "dark-channel", "reference", "reference-mean", "reference-extinction", "reference-light"
+    ] = "dark-channel"
     """Where the trainable medium starts: the dark channel's estimate, or ``reference`` (a diagnosis
     on td-synth data, never a method): fitted to the generator's true medium before training, to
     see whether training keeps it (pipelines/tridehaze/reference_start.py); ``reference-mean``: to
-    its mean over the box, one extinction and one light (the right amount, not the layout)."""
+    its mean over the box, one extinction and one light (the right amount, not the layout);
+    ``reference-extinction``: the true extinction with the mean light; ``reference-light``: the true
+    light with the mean extinction."""
     march_to: Literal["rendered", "true-depth"] = "rendered"
     """Where the training rays' march through the medium ends: the Gaussians' rendered depth, or
     ``true-depth`` (a diagnosis on td-synth data, never a method): each training view's true depth
@@ -637,8 +641,8 @@ class GaussianPipeline(Pipeline):
         if not self.medium.has_medium:
             return
         if cfg.medium_start != "dark-channel" and training:
-            flat = cfg.medium_start == "reference-mean"
-            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed, flat))
+            part = cfg.medium_start.removeprefix("reference").removeprefix("-") or "all"
+            self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed, part))
         if cfg.medium_from is not None:
             self.init_info["medium_from_step"] = load_medium(self.medium, cfg.medium_from)
 

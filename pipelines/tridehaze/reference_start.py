@@ -2,12 +2,15 @@
 method): does training keep the true medium, or does it leave it for the one it ends at from the
 dark channel's start? The first says the objective is right and the start is the lever; the
 second says the losses prefer a wrong medium (docs/results/medium_recovery.md, session 55). With
-``flat``, the start is the true medium's box mean: one extinction and one light for every point and
-direction, so its amount and light are right but not its layout (session 59)."""
+``part="mean"``, the start is the true medium's box mean: one extinction and one light for every
+point and direction, so its amount and light are right but not its layout (session 59);
+``"extinction"`` keeps the true extinction with the mean light, ``"light"`` the true light with the
+mean extinction, to tell which of the two the start has to carry (session 60)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import torch
 from torch import Tensor
@@ -21,19 +24,23 @@ STEPS = 1500
 POINTS = 8192
 """Random box points (and directions) per step."""
 
+Part = Literal["all", "mean", "extinction", "light"]
+"""What of the true medium the start takes: all of it, its box mean, its extinction (with the mean
+light) or its light (with the mean extinction)."""
+
 
 def fit_to_reference(
-    field: MediumField, root: Path, transform: SceneTransform, seed: int = 0, flat: bool = False
+    field: MediumField, root: Path, transform: SceneTransform, seed: int = 0, part: Part = "all"
 ) -> dict[str, float]:
     """Fit ``field``'s extinction (in log) and light to the generator's medium of the dataset at
-    ``root`` (``flat``: to its mean over the box), at uniform points of the field's box with uniform
+    ``root`` (or the ``part`` of it asked for), at uniform points of the field's box with uniform
     directions; returns the fit's final relative extinction error and light error (means over a
     fresh sample, against what was fitted)."""
     truth = true_medium(field.config, field.bounds, root, transform)
     gen = torch.Generator().manual_seed(seed)  # the run's own random stream is left as it was
     device = field.bounds_center.device
-    if flat:
-        truth = _box_mean(truth, *_sample(field, gen, device))
+    if part != "all":
+        truth = _Part(truth, _box_mean(truth, *_sample(field, gen, device)), part)
     params = [p for p, _ in field.param_groups().values()]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(STEPS):
@@ -62,6 +69,22 @@ class _Uniform:
     def __call__(self, x: Tensor, d: Tensor) -> _Uniform:
         n = x.shape[0]
         return _Uniform(self.beta.expand(n, *self.beta.shape), self.light.expand(n, 3))
+
+
+class _Part:
+    """The true medium with its extinction, its light or both replaced by their box mean."""
+
+    def __init__(self, truth, mean: _Uniform, part: Part) -> None:  # noqa: ANN001 - a medium field
+        self.truth, self.mean, self.part = truth, mean, part
+
+    def __call__(self, x: Tensor, d: Tensor) -> _Uniform:
+        flat = self.mean(x, d)
+        if self.part == "mean":
+            return flat
+        true = self.truth(x, d)
+        if self.part == "extinction":
+            return _Uniform(true.beta, flat.light)
+        return _Uniform(flat.beta, true.light)
 
 
 def _box_mean(truth, x: Tensor, d: Tensor) -> _Uniform:  # noqa: ANN001 - a medium field

@@ -1,6 +1,7 @@
 """Three diagnoses on td-synth data that read the generator's answer (never methods):
 ``--pipeline.medium-start reference`` starts the trainable medium fitted to the true medium (or
-``reference-mean``, to its mean over the box),
+``reference-mean``, to its mean over the box; ``reference-extinction`` / ``reference-light``, to
+one part of it with the other at its mean),
 ``--pipeline.march-to true-depth`` ends the training rays' march at the true depth, and
 ``--pipeline.medium-learns-from true-depth`` lets the medium learn only from pixels whose rendered
 depth is right."""
@@ -79,6 +80,28 @@ def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
     assert abs(float(beta.mean() / want.beta.mean()) - 1.0) < 0.1  # at the true mean
     assert (got.light.mean(0) - want.light.mean(0)).abs().max() < 0.03
     assert float(got.light.std(0).max()) < 0.02
+
+
+@pytest.mark.parametrize("part", ["extinction", "light"])
+def test_reference_part_start_takes_one_part_and_the_others_mean(scene, tmp_path, part):
+    fitted = _trainer(scene, tmp_path / part, "--pipeline.medium-start", f"reference-{part}")
+    field = fitted.pipeline.medium
+    truth = true_medium(field.config, field.bounds, scene, fitted.datamanager.scene.transform)
+    gen = torch.Generator().manual_seed(4)
+    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
+    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
+    with torch.no_grad():
+        got, want = field(x, d), truth(x, d)
+    beta = got.beta.clamp_min(1e-9)
+    assert float(want.light.std(0).max()) > 0.05  # the true light depends on direction
+    if part == "extinction":
+        assert _log_beta_error(field, scene, fitted) < 0.1  # the layout is the truth's
+        assert float(got.light.std(0).max()) < 0.02  # one light
+        assert (got.light.mean(0) - want.light.mean(0)).abs().max() < 0.03
+    else:
+        assert float(beta.std() / beta.mean()) < 0.05  # one extinction
+        assert abs(float(beta.mean() / want.beta.mean()) - 1.0) < 0.1
+        assert float((got.light - want.light).abs().mean()) < 0.03  # the light is the truth's
 
 
 def test_march_to_true_depth(scene, tmp_path):
