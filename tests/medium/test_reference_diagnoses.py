@@ -16,6 +16,7 @@ import pytest
 import torch
 from rich.console import Console
 
+from components.medium.base import MediumSample
 from components.medium.compositing import MediumRender
 from components.medium.reference import true_medium
 from pipelines.engine.medium_recovery import reference_depth
@@ -56,6 +57,17 @@ def _log_beta_error(field, data: Path, trainer: Trainer) -> float:
     return float((got.clamp_min(1e-6).log() - want.clamp_min(1e-6).log()).abs().mean())
 
 
+def _fitted_and_true(trainer: Trainer, data: Path, seed: int) -> tuple[MediumSample, MediumSample]:
+    """The trainer's medium and the generator's at 4096 uniform box points and directions."""
+    field = trainer.pipeline.medium
+    truth = true_medium(field.config, field.bounds, data, trainer.datamanager.scene.transform)
+    gen = torch.Generator().manual_seed(seed)
+    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
+    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
+    with torch.no_grad():
+        return field(x, d), truth(x, d)
+
+
 def test_reference_start_fits_the_true_medium(scene, tmp_path):
     fitted = _trainer(scene, tmp_path / "a", "--pipeline.medium-start", "reference")
     info = fitted.pipeline.init_info
@@ -67,13 +79,7 @@ def test_reference_start_fits_the_true_medium(scene, tmp_path):
 
 def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
     fitted = _trainer(scene, tmp_path / "m", "--pipeline.medium-start", "reference-mean")
-    field = fitted.pipeline.medium
-    truth = true_medium(field.config, field.bounds, scene, fitted.datamanager.scene.transform)
-    gen = torch.Generator().manual_seed(2)
-    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
-    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
-    with torch.no_grad():
-        got, want = field(x, d), truth(x, d)
+    got, want = _fitted_and_true(fitted, scene, 2)
     beta = got.beta.clamp_min(1e-9)
     assert float(beta.std() / beta.mean()) < 0.05  # one extinction everywhere
     assert float(want.beta.std() / want.beta.mean()) > 0.2  # the patchy truth is not
@@ -86,12 +92,7 @@ def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
 def test_reference_part_start_takes_one_part_and_the_others_mean(scene, tmp_path, part):
     fitted = _trainer(scene, tmp_path / part, "--pipeline.medium-start", f"reference-{part}")
     field = fitted.pipeline.medium
-    truth = true_medium(field.config, field.bounds, scene, fitted.datamanager.scene.transform)
-    gen = torch.Generator().manual_seed(4)
-    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
-    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
-    with torch.no_grad():
-        got, want = field(x, d), truth(x, d)
+    got, want = _fitted_and_true(fitted, scene, 4)
     beta = got.beta.clamp_min(1e-9)
     assert float(want.light.std(0).max()) > 0.05  # the true light depends on direction
     if part == "extinction":
