@@ -65,6 +65,7 @@ from pipelines.tridehaze.priors import (
     visible_points,
 )
 from pipelines.tridehaze.probe import probe_haze
+from pipelines.tridehaze.reference_start import PARTS as REFERENCE_PARTS
 from pipelines.tridehaze.reference_start import fit_to_reference
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.true_depth_march import march_to_depth, trusted_medium
@@ -641,7 +642,7 @@ class GaussianPipeline(Pipeline):
         if not self.medium.has_medium:
             return
         if cfg.medium_start != "dark-channel" and training:
-            part = cfg.medium_start.removeprefix("reference").removeprefix("-") or "all"
+            part = REFERENCE_PARTS[cfg.medium_start]
             self.init_info.update(fit_to_reference(self.medium, scene.root, scene.transform, seed, part))
         if cfg.medium_from is not None:
             self.init_info["medium_from_step"] = load_medium(self.medium, cfg.medium_from)

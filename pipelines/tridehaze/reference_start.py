@@ -27,6 +27,13 @@ POINTS = 8192
 Part = Literal["all", "mean", "extinction", "light"]
 """What of the true medium the start takes: all of it, its box mean, its extinction (with the mean
 light) or its light (with the mean extinction)."""
+PARTS: dict[str, Part] = {
+    "reference": "all",
+    "reference-mean": "mean",
+    "reference-extinction": "extinction",
+    "reference-light": "light",
+}
+"""The part each ``--pipeline.medium-start`` value other than ``dark-channel`` takes."""
 
 
 def fit_to_reference(
