@@ -47,34 +47,31 @@ def _trainer(data: Path, out: Path, *extra: str) -> Trainer:
     return trainer
 
 
-def _log_beta_error(field, data: Path, trainer: Trainer) -> float:
-    truth = true_medium(field.config, field.bounds, data, trainer.datamanager.scene.transform)
-    gen = torch.Generator().manual_seed(1)
-    x = field.bounds_center + (torch.rand(2048, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
-    d = torch.nn.functional.normalize(torch.randn(2048, 3, generator=gen), dim=-1)  # [P, 3]
-    with torch.no_grad():
-        got, want = field(x, d).beta, truth(x, d).beta
-    return float((got.clamp_min(1e-6).log() - want.clamp_min(1e-6).log()).abs().mean())
-
-
-def _fitted_and_true(trainer: Trainer, data: Path, seed: int) -> tuple[MediumSample, MediumSample]:
-    """The trainer's medium and the generator's at 4096 uniform box points and directions."""
+def _fitted_and_true(
+    trainer: Trainer, data: Path, seed: int, n: int = 4096
+) -> tuple[MediumSample, MediumSample]:
+    """The trainer's medium and the generator's at ``n`` uniform box points and directions."""
     field = trainer.pipeline.medium
     truth = true_medium(field.config, field.bounds, data, trainer.datamanager.scene.transform)
     gen = torch.Generator().manual_seed(seed)
-    x = field.bounds_center + (torch.rand(4096, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
-    d = torch.nn.functional.normalize(torch.randn(4096, 3, generator=gen), dim=-1)  # [P, 3]
+    x = field.bounds_center + (torch.rand(n, 3, generator=gen) * 2 - 1) * field.bounds_half  # [P, 3]
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=-1)  # [P, 3]
     with torch.no_grad():
         return field(x, d), truth(x, d)
+
+
+def _log_beta_error(trainer: Trainer, data: Path) -> float:
+    got, want = _fitted_and_true(trainer, data, 1, n=2048)
+    return float((got.beta.clamp_min(1e-6).log() - want.beta.clamp_min(1e-6).log()).abs().mean())
 
 
 def test_reference_start_fits_the_true_medium(scene, tmp_path):
     fitted = _trainer(scene, tmp_path / "a", "--pipeline.medium-start", "reference")
     info = fitted.pipeline.init_info
     assert info["reference_start_log_beta_mae"] < 0.1 and info["reference_start_light_mae"] < 0.05
-    err = _log_beta_error(fitted.pipeline.medium, scene, fitted)
+    err = _log_beta_error(fitted, scene)
     dark = _trainer(scene, tmp_path / "b")  # the dark channel's uniform start
-    assert err < 0.1 < _log_beta_error(dark.pipeline.medium, scene, dark)
+    assert err < 0.1 < _log_beta_error(dark, scene)
 
 
 def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
@@ -91,12 +88,11 @@ def test_reference_mean_start_is_uniform_at_the_true_mean(scene, tmp_path):
 @pytest.mark.parametrize("part", ["extinction", "light"])
 def test_reference_part_start_takes_one_part_and_the_others_mean(scene, tmp_path, part):
     fitted = _trainer(scene, tmp_path / part, "--pipeline.medium-start", f"reference-{part}")
-    field = fitted.pipeline.medium
     got, want = _fitted_and_true(fitted, scene, 4)
     beta = got.beta.clamp_min(1e-9)
     assert float(want.light.std(0).max()) > 0.05  # the true light depends on direction
     if part == "extinction":
-        assert _log_beta_error(field, scene, fitted) < 0.1  # the layout is the truth's
+        assert _log_beta_error(fitted, scene) < 0.1  # the layout is the truth's
         assert float(got.light.std(0).max()) < 0.02  # one light
         assert (got.light.mean(0) - want.light.mean(0)).abs().max() < 0.03
     else:
