@@ -26,13 +26,10 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from bench_output import fmt, grouped_bars, publish  # noqa: E402
+from error_scales import _mean, _psnr  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
-
-
-def _psnr(err: np.ndarray) -> float:
-    return float(-10.0 * np.log10(max(float(np.square(err).mean()), 1e-10)))
 
 
 def view_agreement(preds: list[np.ndarray], ref: np.ndarray) -> dict:
@@ -91,16 +88,12 @@ def diagnose(configs: list[Path]) -> dict:
 
 
 def _means(views: list[dict], n_runs: int) -> dict:
-    def avg(xs: list) -> float | None:
-        vals = [x for x in xs if x is not None]
-        return float(np.mean(vals)) if vals else None
-
     return {
-        "psnr": [avg([v["psnr"][k] for v in views]) for k in range(n_runs)],
-        "ensemble": avg([v["ensemble"] for v in views]),
-        "error_corr": avg([v["error_corr"] for v in views]),
-        "t_mae": [avg([v["t_mae"][k] for v in views]) for k in range(n_runs)],
-        "t_mae_ensemble": avg([v["t_mae_ensemble"] for v in views]),
+        "psnr": [_mean([v["psnr"][k] for v in views]) for k in range(n_runs)],
+        "ensemble": _mean([v["ensemble"] for v in views]),
+        "error_corr": _mean([v["error_corr"] for v in views]),
+        "t_mae": [_mean([v["t_mae"][k] for v in views]) for k in range(n_runs)],
+        "t_mae_ensemble": _mean([v["t_mae_ensemble"] for v in views]),
     }
 
 
