@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,6 +27,17 @@ def fmt(v: float | None, digits: int = 3, sign: bool = False) -> str:
     if v is None:
         return "-"
     return f"{v:+.{digits}f}" if sign else f"{v:.{digits}f}"
+
+
+def psnr_of_mse(mse: float) -> float:
+    """PSNR (dB, peak 1) of a mean squared error, floored at 1e-12 so a perfect match is finite."""
+    return -10.0 * math.log10(max(mse, 1e-12))
+
+
+def mean_or_none(xs: list[float | None] | None) -> float | None:
+    """The mean of the values that are there; None where none is."""
+    vals = [x for x in xs or [] if x is not None]
+    return sum(vals) / len(vals) if vals else None
 
 
 def diagnose_runs_main(

@@ -16,7 +16,6 @@ Writes OUT.json, OUT.md (one row per run and region) and OUT.png.
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
@@ -27,7 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, grouped_bars, psnr_of_mse  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 from sky_split import SKY_FAR_SHARE, _far_bound_m  # noqa: E402
 
@@ -50,10 +49,6 @@ def region_masks(true_t: Tensor, sky: Tensor) -> dict[str, Tensor]:
     }
 
 
-def _psnr(se: float, n: int) -> float:
-    return -10.0 * math.log10(max(se / (3 * n), 1e-12))
-
-
 def diagnose(config: Path) -> dict:
     run = load_run(config)
     dm, pipe = run.datamanager, run.pipeline
@@ -67,9 +62,9 @@ def diagnose(config: Path) -> dict:
         err = out["clean"] - reference  # [H, W, 3]
         se = (err**2).sum(-1)  # [H, W]
         masks = region_masks(view.true_t[..., 0], view.true_z[..., 0] >= far_z)
-        base.append(_psnr(float(se.sum()), se.numel()))
+        base.append(psnr_of_mse(float(se.sum()) / (3 * se.numel())))
         for name, m in masks.items():
-            perfect[name].append(_psnr(float(se[~m].sum()), se.numel()))
+            perfect[name].append(psnr_of_mse(float(se[~m].sum()) / (3 * se.numel())))
             s = sums[name]
             s["n"] += int(m.sum())
             s["t_model"] += float(out["transmittance"][..., 0][m].sum())

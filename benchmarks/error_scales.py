@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, fmt, grouped_bars, mean_or_none, psnr_of_mse  # noqa: E402
 from sky_split import arm_of, run_label  # noqa: E402
 
 from pipelines.engine.medium_recovery import OBSERVABLE_T, REFERENCE_T_KEY, reference_map  # noqa: E402
@@ -42,7 +42,7 @@ def _psnr(err: np.ndarray, mask: np.ndarray | None = None) -> float | None:
         if not mask.any():
             return None
         sq = sq[mask]
-    return float(-10.0 * np.log10(max(float(sq.mean()), 1e-10)))
+    return psnr_of_mse(float(sq.mean()))
 
 
 def _affine_error(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -101,13 +101,8 @@ def diagnose(config: Path) -> dict:
         "scene": Path(str(run.config.dataset.data)).name,
         "seed": run.config.seed,
         "views": views,
-        "mean": {k: _mean([v[k] for v in views]) for k in (views[0] if views else {})},
+        "mean": {k: mean_or_none([v[k] for v in views]) for k in (views[0] if views else {})},
     }
-
-
-def _mean(xs: list[float | None]) -> float | None:
-    vals = [x for x in xs if x is not None]
-    return sum(vals) / len(vals) if vals else None
 
 
 def markdown(rows: list[dict]) -> str:

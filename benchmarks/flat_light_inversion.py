@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, fmt, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, fmt, grouped_bars, mean_or_none  # noqa: E402
 from sky_split import arm_of, run_label  # noqa: E402
 
 from pipelines.engine.metrics import psnr  # noqa: E402
@@ -70,10 +70,6 @@ def diagnose(config: Path) -> dict:
     }
 
 
-def _mean(xs: list[float] | None) -> float | None:
-    return sum(xs) / len(xs) if xs else None
-
-
 def markdown(rows: list[dict]) -> str:
     lines = [
         "| run | scene | seed | judged one light | opaque share | light spread (training pixels) "
@@ -87,15 +83,15 @@ def markdown(rows: list[dict]) -> str:
         lines.append(
             f"| {arm_of(r['run'])} | {r['scene']} | {r['seed']} | {'yes' if r['one_light'] else 'no'} "
             f"| {fmt(r['seen_share'], 3)} | {fmt(r['light_spread'], 3)} | {views} "
-            f"| {fmt(_mean(r['inverted_learnt']))} -> {fmt(_mean(r['inverted_flat']))} | {offsets} |"
+            f"| {fmt(mean_or_none(r['inverted_learnt']))} -> {fmt(mean_or_none(r['inverted_flat']))} | {offsets} |"
         )
     return "\n".join(lines) + "\n"
 
 
 def plot(rows: list[dict], path: Path) -> None:
     series = [
-        ("learnt light", [_mean(r["inverted_learnt"]) or 0.0 for r in rows]),
-        ("flat light", [_mean(r["inverted_flat"]) or 0.0 for r in rows]),
+        ("learnt light", [mean_or_none(r["inverted_learnt"]) or 0.0 for r in rows]),
+        ("flat light", [mean_or_none(r["inverted_flat"]) or 0.0 for r in rows]),
     ]
     grouped_bars(path, [run_label(r) for r in rows], series, "PSNR of (I - S) / T on the test views (dB)")
 

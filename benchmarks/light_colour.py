@@ -15,7 +15,6 @@ Writes OUT.json, OUT.md (one row per run) and OUT.png.
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
@@ -26,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
+from bench_output import diagnose_runs_main, grouped_bars, psnr_of_mse  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_S_KEY, reference_map  # noqa: E402
@@ -34,10 +33,6 @@ from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.experiments.tables import fmt_number  # noqa: E402
 from pipelines.tridehaze.light_colour_fit import mean_ray_light  # noqa: E402
 from pipelines.tridehaze.priors import dcp_per_view  # noqa: E402
-
-
-def _psnr(mse: float) -> float:
-    return -10.0 * math.log10(max(mse, 1e-12))
 
 
 def _mean(values: list[Tensor]) -> list[float] | None:
@@ -61,8 +56,8 @@ def diagnose(config: Path) -> dict:
     if not errors:
         raise SystemExit(f"{config}: the dataset has no true transmittance and depth maps")
     cast = torch.stack([e.reshape(-1, 3).mean(dim=0) for e in errors]).mean(dim=0)  # [3]
-    psnr = sum(_psnr(float((e**2).mean())) for e in errors) / len(errors)
-    without = sum(_psnr(float(((e - cast) ** 2).mean())) for e in errors) / len(errors)
+    psnr = sum(psnr_of_mse(float((e**2).mean())) for e in errors) / len(errors)
+    without = sum(psnr_of_mse(float(((e - cast) ** 2).mean())) for e in errors) / len(errors)
     return {
         "run": str(config.parent),
         "scene": Path(str(run.config.dataset.data)).name,

@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import fmt, grouped_bars, publish  # noqa: E402
-from error_scales import _mean, _psnr  # noqa: E402
+from bench_output import fmt, grouped_bars, mean_or_none, publish  # noqa: E402
+from error_scales import _psnr  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -89,11 +89,11 @@ def diagnose(configs: list[Path]) -> dict:
 
 def _means(views: list[dict], n_runs: int) -> dict:
     return {
-        "psnr": [_mean([v["psnr"][k] for v in views]) for k in range(n_runs)],
-        "ensemble": _mean([v["ensemble"] for v in views]),
-        "error_corr": _mean([v["error_corr"] for v in views]),
-        "t_mae": [_mean([v["t_mae"][k] for v in views]) for k in range(n_runs)],
-        "t_mae_ensemble": _mean([v["t_mae_ensemble"] for v in views]),
+        "psnr": [mean_or_none([v["psnr"][k] for v in views]) for k in range(n_runs)],
+        "ensemble": mean_or_none([v["ensemble"] for v in views]),
+        "error_corr": mean_or_none([v["error_corr"] for v in views]),
+        "t_mae": [mean_or_none([v["t_mae"][k] for v in views]) for k in range(n_runs)],
+        "t_mae_ensemble": mean_or_none([v["t_mae_ensemble"] for v in views]),
     }
 
 
