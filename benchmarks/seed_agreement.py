@@ -25,8 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from bench_output import fmt, grouped_bars, mean_or_none, publish  # noqa: E402
-from error_scales import _psnr  # noqa: E402
+from bench_output import fmt, grouped_bars, mean_or_none, psnr_of_mse, publish  # noqa: E402
 
 from pipelines.engine.medium_recovery import REFERENCE_T_KEY, reference_map  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
@@ -37,8 +36,8 @@ def view_agreement(preds: list[np.ndarray], ref: np.ndarray) -> dict:
     errors = [(p - ref).astype(np.float64).ravel() for p in preds]
     corr = [float(np.corrcoef(a, b)[0, 1]) for a, b in combinations(errors, 2)]
     return {
-        "psnr": [_psnr(p - ref) for p in preds],
-        "ensemble": _psnr(np.mean(preds, axis=0) - ref),
+        "psnr": [psnr_of_mse(float(np.square(p - ref).mean())) for p in preds],
+        "ensemble": psnr_of_mse(float(np.square(np.mean(preds, axis=0) - ref).mean())),
         "error_corr": float(np.mean(corr)),
     }
 
