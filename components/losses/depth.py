@@ -1,4 +1,5 @@
-"""Depth regularisers for the Gaussian depth render: Pearson correlation, edge-aware smoothness,
+"""Depth regularisers for the Gaussian depth render: Pearson correlation (optionally trimmed of its
+worst residuals), edge-aware smoothness,
 a log-depth L1 for priors that carry the scene's own scale, and the depth spread along each ray.
 
 The first two are scale-free on purpose: most pseudo-depth priors (files, dark channel) are only
@@ -52,6 +53,36 @@ def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, 
     q = q / torch.sqrt(q.square().sum() / n + eps)
     loss = 1.0 - (p * q).sum() / n
     return _zero_if_few(loss, count)
+
+
+def trimmed_pearson_depth_loss(
+    pred: Tensor, prior: Tensor, mask: Tensor | None = None, trim: float = 0.2
+) -> Tensor:
+    """:func:`pearson_depth_loss` without the ``trim`` share of the prior's pixels that disagree
+    most with ``pred`` [H, W] (largest squared difference of the two standardised maps, chosen
+    without gradient each call, as MiDaS's trimmed loss does).
+
+    Sparse SfM depth carries outliers (mismatches, hidden points reprojected through gaps in a
+    sparse foreground), and one far outlier moves a Pearson correlation more than many good near
+    pixels; dropping the worst residuals keeps the pull where prior and render roughly agree.
+    ``trim`` = 0 is :func:`pearson_depth_loss`.
+    """
+    if trim <= 0.0:
+        return pearson_depth_loss(pred, prior, mask)
+    valid = _prior_pixels(prior, mask)
+    with torch.no_grad():
+        w = valid.to(pred.dtype)  # [H, W]
+        n = w.sum().clamp_min(1.0)
+        p = torch.where(valid, pred, torch.zeros_like(pred))
+        q = torch.where(valid, prior.to(pred.dtype), torch.zeros_like(pred))
+        p = (p - _masked_mean(p, w, n)) * w
+        q = (q - _masked_mean(q, w, n)) * w
+        p = p / torch.sqrt(p.square().sum() / n + 1e-8)
+        q = q / torch.sqrt(q.square().sum() / n + 1e-8)
+        resid = torch.where(valid, (p - q).square(), torch.full_like(p, float("nan")))  # [H, W]
+        cut = torch.nanquantile(resid.flatten(), 1.0 - trim)
+        keep = valid & (resid <= cut)  # NaN compares False: invalid pixels stay out
+    return pearson_depth_loss(pred, prior, keep)
 
 
 def edge_aware_smoothness(

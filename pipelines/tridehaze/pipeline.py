@@ -21,7 +21,12 @@ from components.data.cameras import Cameras, scene_up
 from components.gaussians.densify import Densifier, DensifyConfig
 from components.gaussians.model import GaussianModel, GaussianModelConfig
 from components.losses.dcp import DCPResult, dark_channel_bound, dcp_transmittance_loss, default_patch
-from components.losses.depth import depth_spread, edge_aware_smoothness, log_depth_l1, pearson_depth_loss
+from components.losses.depth import (
+    depth_spread,
+    edge_aware_smoothness,
+    log_depth_l1,
+    trimmed_pearson_depth_loss,
+)
 from components.losses.medium_texture import path_extinction_roughness
 from components.losses.reconstruction import ReconstructionLossConfig
 from components.losses.shape import elongation_penalty
@@ -132,6 +137,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """Weight of the depth loss (1 - Pearson correlation + lambda_smooth * smoothness); 0 = off."""
     lambda_smooth: Annotated[float, NonNegative] = 0.1
     """Weight of edge-aware depth smoothness inside the depth loss; 0 = off."""
+    depth_trim: Annotated[float, Range(0.0, 0.9)] = 0.0
+    """Share of the prior's pixels left out of the depth correlation each step: those whose
+    standardised depth disagrees most with the render (a trimmed loss against SfM outliers:
+    mismatches and hidden points seen through gaps). 0 = every prior pixel counts."""
     lambda_depth_metric: Annotated[float, NonNegative] = 0.0
     """Weight of the log-depth L1 against a pseudo-depth in the scene's own scale (the ``sfm``
     prior only; the others are relative); 0 = off. The Pearson term cannot see the depth's scale,
@@ -806,7 +815,7 @@ class GaussianPipeline(Pipeline):
         if cfg.lambda_depth > 0 and prior is not None and prior.depth is not None:
             d = depth[..., 0]
             if cfg.depth_correlation:
-                corr = pearson_depth_loss(d, prior.depth, prior.depth_valid)
+                corr = trimmed_pearson_depth_loss(d, prior.depth, prior.depth_valid, cfg.depth_trim)
                 loss = loss + cfg.lambda_depth * corr
                 metrics["depth_corr"] = 1.0 - corr.detach()
             if cfg.lambda_smooth > 0:

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from components.losses.depth import edge_aware_smoothness, pearson_depth_loss
+from components.losses.depth import edge_aware_smoothness, pearson_depth_loss, trimmed_pearson_depth_loss
 
 
 @pytest.fixture
@@ -42,6 +42,37 @@ def test_pearson_ignores_masked_and_nonfinite_pixels(prior):
     noisy_prior[0, 10] = float("nan")  # ignored without a mask entry
     assert pearson_depth_loss(pred, noisy_prior, mask).item() == pytest.approx(0.0, abs=1e-5)
     assert pearson_depth_loss(pred, noisy_prior).item() > 0.5
+
+
+def test_trimmed_pearson_drops_a_few_prior_outliers(prior):
+    """5 % of the prior's pixels far off (SfM mismatches): the plain correlation sees them, a
+    trim of 10 % leaves them out and the rendered depth that follows the true surface scores 0."""
+    pred = 2.0 * prior + 1.0  # the render follows the true surface
+    bad = prior.clone()
+    g = torch.Generator().manual_seed(3)
+    idx = torch.randperm(prior.numel(), generator=g)[: prior.numel() // 20].to(prior.device)
+    bad.view(-1)[idx] = 60.0  # outliers well beyond the true range [1, 11]
+    mask = torch.ones_like(prior, dtype=torch.bool)
+    mask[0, :4] = False
+    assert pearson_depth_loss(pred, bad, mask).item() > 0.3
+    assert trimmed_pearson_depth_loss(pred, bad, mask, trim=0.1).item() == pytest.approx(0.0, abs=1e-4)
+
+
+def test_trimmed_pearson_without_trim_is_pearson(prior):
+    pred = prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(4)).to(prior.device)
+    assert trimmed_pearson_depth_loss(pred, prior, trim=0.0).item() == pytest.approx(
+        pearson_depth_loss(pred, prior).item(), abs=1e-7
+    )
+
+
+def test_trimmed_pearson_gradient_reaches_the_kept_pixels_only(prior):
+    pred = prior + torch.randn(prior.shape, generator=torch.Generator().manual_seed(5)).to(prior.device)
+    pred[2, 3] = 500.0  # the worst residual: trimmed
+    pred.requires_grad_()
+    trimmed_pearson_depth_loss(pred, prior, trim=0.2).backward()
+    assert torch.isfinite(pred.grad).all()
+    assert pred.grad[2, 3].item() == 0.0
+    assert (pred.grad != 0).float().mean().item() > 0.7  # about 80 % of the pixels kept
 
 
 def test_pearson_gradient_finite_and_nonzero(prior):
