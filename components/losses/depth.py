@@ -28,6 +28,13 @@ def _prior_pixels(prior: Tensor, mask: Tensor | None) -> Tensor:
     return valid & mask.bool() if mask is not None else valid
 
 
+def _standardised(x: Tensor, valid: Tensor, w: Tensor, n: Tensor, eps: float) -> Tensor:
+    """``x`` [H, W] with mean 0 and variance 1 over ``valid`` (weights ``w``, count ``n``), 0 elsewhere."""
+    x = torch.where(valid, x, torch.zeros_like(x))
+    x = (x - _masked_mean(x, w, n)) * w
+    return x / torch.sqrt(x.square().sum() / n + eps)
+
+
 def _zero_if_few(loss: Tensor, count: Tensor) -> Tensor:
     """``loss``, or a differentiable 0 where fewer than ``MIN_VALID_PIXELS`` pixels were valid."""
     return torch.where(count >= MIN_VALID_PIXELS, loss, loss * 0.0)
@@ -45,12 +52,8 @@ def pearson_depth_loss(pred: Tensor, prior: Tensor, mask: Tensor | None = None, 
     w = valid.to(pred.dtype)  # [H, W]
     count = w.sum()
     n = count.clamp_min(1.0)
-    p = torch.where(valid, pred, torch.zeros_like(pred))
-    q = torch.where(valid, prior.to(pred.dtype), torch.zeros_like(pred))
-    p = (p - _masked_mean(p, w, n)) * w
-    q = (q - _masked_mean(q, w, n)) * w
-    p = p / torch.sqrt(p.square().sum() / n + eps)
-    q = q / torch.sqrt(q.square().sum() / n + eps)
+    p = _standardised(pred, valid, w, n, eps)
+    q = _standardised(prior.to(pred.dtype), valid, w, n, eps)
     loss = 1.0 - (p * q).sum() / n
     return _zero_if_few(loss, count)
 
@@ -73,12 +76,8 @@ def trimmed_pearson_depth_loss(
     with torch.no_grad():
         w = valid.to(pred.dtype)  # [H, W]
         n = w.sum().clamp_min(1.0)
-        p = torch.where(valid, pred, torch.zeros_like(pred))
-        q = torch.where(valid, prior.to(pred.dtype), torch.zeros_like(pred))
-        p = (p - _masked_mean(p, w, n)) * w
-        q = (q - _masked_mean(q, w, n)) * w
-        p = p / torch.sqrt(p.square().sum() / n + 1e-8)
-        q = q / torch.sqrt(q.square().sum() / n + 1e-8)
+        p = _standardised(pred, valid, w, n, 1e-8)
+        q = _standardised(prior.to(pred.dtype), valid, w, n, 1e-8)
         resid = torch.where(valid, (p - q).square(), torch.full_like(p, float("nan")))  # [H, W]
         cut = torch.nanquantile(resid.flatten(), 1.0 - trim)
         keep = valid & (resid <= cut)  # NaN compares False: invalid pixels stay out
