@@ -28,6 +28,7 @@ if str(REPO) not in sys.path:
 from bench_output import diagnose_runs_main, grouped_bars  # noqa: E402
 from reference_views import reference_views  # noqa: E402
 
+from components.losses.depth import untrimmed_pixels  # noqa: E402
 from pipelines.engine.run_loader import load_run  # noqa: E402
 from pipelines.tridehaze.priors import build_view_priors, resolve_depth_prior  # noqa: E402
 
@@ -37,26 +38,16 @@ OUTLIER = 0.3
 """Relative depth error beyond which a prior (or rendered) pixel counts as an outlier."""
 
 
-def _standardised(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """``x`` [H, W] with mean 0 and std 1 over the weights ``w`` (0 elsewhere)."""
-    n = w.sum().clamp_min(1.0)
-    x = (x - (x * w).sum() / n) * w
-    return x / torch.sqrt(x.square().sum() / n + 1e-8)
-
-
 def _view_shares(prior, true_z: torch.Tensor, depth: torch.Tensor) -> dict | None:
     """One view's outlier shares; ``true_z``, ``depth`` [H, W]."""
     valid = prior.depth_valid & torch.isfinite(prior.depth)  # [H, W]
     n = int(valid.sum())
     if n < 10:
         return None
-    w = valid.float()
     q = prior.depth.nan_to_num(0.0)
     outlier = valid & ((q - true_z).abs() > OUTLIER * true_z)
     render_off = valid & ((depth - true_z).abs() > OUTLIER * true_z)
-    resid = (_standardised(depth, w) - _standardised(q, w)).square()  # [H, W]
-    cut = torch.quantile(resid[valid], 1.0 - TRIM)
-    top = valid & (resid > cut)
+    top = valid & ~untrimmed_pixels(depth, prior.depth, prior.depth_valid, TRIM)  # what the trim drops
     k = max(int(top.sum()), 1)
     return {
         "outliers": float(outlier.sum()) / n,
@@ -98,7 +89,7 @@ def diagnose(config: Path) -> dict:
 def markdown(rows: list[dict]) -> str:
     lines = [
         f"| scene | seed | prior pixels > {OUTLIER:.0%} off | share of the trimmed {TRIM:.0%} that are | "
-        "outliers the trim catches | render > 30 % off: all / in the trimmed set |",
+        f"outliers the trim catches | render > {OUTLIER:.0%} off: all / in the trimmed set |",
         "|---|---|---|---|---|---|",
     ]
     for r in rows:

@@ -72,16 +72,22 @@ def trimmed_pearson_depth_loss(
     """
     if trim <= 0.0:
         return pearson_depth_loss(pred, prior, mask)
+    return pearson_depth_loss(pred, prior, untrimmed_pixels(pred, prior, mask, trim))
+
+
+@torch.no_grad()
+def untrimmed_pixels(pred: Tensor, prior: Tensor, mask: Tensor | None, trim: float) -> Tensor:
+    """[H, W] bool: the prior's pixels (finite, inside ``mask``) that
+    :func:`trimmed_pearson_depth_loss` keeps, i.e. all but the ``trim`` share with the largest
+    squared difference of ``pred`` and ``prior`` standardised over them."""
     valid = _prior_pixels(prior, mask)
-    with torch.no_grad():
-        w = valid.to(pred.dtype)  # [H, W]
-        n = w.sum().clamp_min(1.0)
-        p = _standardised(pred, valid, w, n, 1e-8)
-        q = _standardised(prior.to(pred.dtype), valid, w, n, 1e-8)
-        resid = torch.where(valid, (p - q).square(), torch.full_like(p, float("nan")))  # [H, W]
-        cut = torch.nanquantile(resid.flatten(), 1.0 - trim)
-        keep = valid & (resid <= cut)  # NaN compares False: invalid pixels stay out
-    return pearson_depth_loss(pred, prior, keep)
+    w = valid.to(pred.dtype)  # [H, W]
+    n = w.sum().clamp_min(1.0)
+    p = _standardised(pred, valid, w, n, 1e-8)
+    q = _standardised(prior.to(pred.dtype), valid, w, n, 1e-8)
+    resid = torch.where(valid, (p - q).square(), torch.full_like(p, float("nan")))  # [H, W]
+    cut = torch.nanquantile(resid.flatten(), 1.0 - trim)
+    return valid & (resid <= cut)  # NaN compares False: invalid pixels stay out
 
 
 def edge_aware_smoothness(
