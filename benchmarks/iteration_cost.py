@@ -52,6 +52,10 @@ from tridehaze_plugin.registry import REGISTRY, load_all  # noqa: E402
 RESULTS = REPO / "benchmarks" / "results"
 
 
+TRIMMED = {"depth_trim": 0.2, "lambda_depth": 0.1, "lambda_smooth": 0.05}
+"""Session 63's trimmed depth correlation: a quantile of the residuals per view and step."""
+
+
 def variants() -> dict[str, tuple[str, dict]]:
     """name -> (method, pipeline overrides)."""
     return {
@@ -63,6 +67,7 @@ def variants() -> dict[str, tuple[str, dict]]:
         "tri-dehaze (stride 2)": ("tri-dehaze", {"stride": 2}),
         "tri-dehaze (stride 1, every pixel)": ("tri-dehaze", {"stride": 1}),
         "tri-dehaze (field light, SH1: before session 23)": ("tri-dehaze", {"light": ("field", "sh")}),
+        "tri-dehaze (trimmed depth correlation 0.2, session 63)": ("tri-dehaze", {"pipeline": TRIMMED}),
     }
 
 
@@ -86,6 +91,7 @@ def build(method: str, over: dict, data: Path, points: int, backend: str, device
     if "light" in over:  # where the medium light may vary, and its direction model
         space, light = over["light"]
         p = replace(p, medium=replace(p.medium, light_space=space, light=light))
+    p = replace(p, **over.get("pipeline", {}))  # any other pipeline fields under test
     cfg = replace(cfg, pipeline=p, dataset=replace(cfg.dataset, data=data), max_steps=10_000)
     scene = load_scene(cfg.dataset)
     dm = DataManager(scene, device, seed=0)
