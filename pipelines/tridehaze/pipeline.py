@@ -141,8 +141,8 @@ class GaussianPipelineConfig(PipelineConfig):
     """Share of the prior's pixels left out of the depth correlation each step: those whose
     standardised depth disagrees most with the render (a trimmed loss against SfM outliers:
     mismatches and hidden points seen through gaps). 0 = every prior pixel counts. With
-    ``lambda_depth`` 0.1 it gains 0.4-0.5 dB on the benchmark set and ties on the holdout set
-    (docs/results/medium_recovery.md, sessions 63-64), so it stays off."""
+    ``lambda_depth`` 0.1 it gains 0.4-0.5 dB on the benchmark set, ties on the holdout set and
+    is mixed on hazed real photos (docs/results/medium_recovery.md, sessions 63-64): off."""
     lambda_depth_metric: Annotated[float, NonNegative] = 0.0
     """Weight of the log-depth L1 against a pseudo-depth in the scene's own scale (the ``sfm``
     prior only; the others are relative); 0 = off. The Pearson term cannot see the depth's scale,
