@@ -88,6 +88,11 @@ def _files(root: Path) -> list[str]:
     return out
 
 
+class OutputTakenError(UserError):
+    """The output folder was filled by another writer while this one wrote its staged copy (two
+    runs making the same dataset at once); the other's folder is left as it is."""
+
+
 @contextmanager
 def staged_output(out: Path, overwrite: bool, tool: str, flag: str = "--output-dir") -> Iterator[Path]:
     """Yield a temporary folder next to ``out``; on success it replaces ``out`` (atomic rename)."""
@@ -130,7 +135,7 @@ def _commit(tmp: Path, out: Path, overwrite: bool, tool: str) -> None:
     old = None
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:  # appeared while we were writing
-            raise UserError("output folder was filled by someone else while writing", where=str(out))
+            raise OutputTakenError("output folder was filled by someone else while writing", where=str(out))
         _check_replaceable(out, tool)  # again: it may have changed while we were writing
         old = out.with_name(f".{out.name}.old-{uuid.uuid4().hex[:8]}")
         os.rename(out, old)

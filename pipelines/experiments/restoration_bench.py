@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from components.synth.generate import SceneConfig, generate_scene, mismatch
+from components.synth.writer import OutputTakenError
 from pipelines.engine.medium_recovery import OBSERVABLE_T
 from pipelines.experiments.ablation import Variant
 from pipelines.experiments.tables import fmt_number, mean_finite, nested
@@ -156,8 +157,7 @@ def build(
             height=scene_set.height,
         )
         if not is_dataset(path):
-            generate_scene(cfg)
-            log(f"generated {path.name}")
+            _generate(cfg, log)
         elif (why := mismatch(path, cfg)) is not None:
             raise DataError(
                 f"the {scene_set.name} set's scene {name} cannot be reused: {why}",
@@ -166,6 +166,19 @@ def build(
             )
         paths.append(path)
     return paths + [root / n for n in dict.fromkeys(names or []) if n not in scene_set.names()]
+
+
+def _generate(cfg: SceneConfig, log) -> None:
+    """Generate one scene; where another td-bench wrote the same folder meanwhile (two arms started
+    on a new set), use theirs: the generator is deterministic, so it is the same scene."""
+    try:
+        generate_scene(cfg)
+    except OutputTakenError:
+        if mismatch(cfg.output_dir, cfg) is not None:
+            raise
+        log(f"{cfg.output_dir.name}: written meanwhile by another run; using it")
+        return
+    log(f"generated {cfg.output_dir.name}")
 
 
 def variants(methods: list[str], max_steps: int) -> list[Variant]:

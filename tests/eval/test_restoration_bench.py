@@ -109,6 +109,37 @@ def test_a_scene_folder_from_another_generator_or_other_settings_is_refused_not_
     assert made == [] and sorted(p.name for p in folder.iterdir()) == ["transforms.json"]  # nothing touched
 
 
+def test_a_scene_written_meanwhile_by_another_run_is_used_when_it_is_the_same_scene(tmp_path, monkeypatch):
+    """Two td-bench arms started on a new set both generate each scene; the one that loses the
+    rename uses the winner's folder (the generator is deterministic) unless it is another scene."""
+    from dataclasses import asdict, replace
+
+    from components.synth.generate import GENERATOR_VERSION
+    from components.synth.writer import OutputTakenError
+    from pipelines.experiments import restoration_bench as rb
+    from tridehaze_plugin.errors import DataError
+
+    def loser(cfg, width=None):
+        """Another run's rename lands first; this one's staged copy is refused."""
+        cfg.output_dir.mkdir()
+        (cfg.output_dir / "transforms.json").write_text("{}")
+        written = replace(cfg, width=width) if width else cfg
+        settings = {k: (str(v) if k == "output_dir" else v) for k, v in asdict(written).items()}
+        meta = {"generator_version": GENERATOR_VERSION, "settings": settings}
+        (cfg.output_dir / "synth_meta.json").write_text(json.dumps(meta))
+        raise OutputTakenError("output folder was filled by someone else while writing", where=str(cfg.output_dir))
+
+    logged = []
+    monkeypatch.setattr(rb, "generate_scene", loser)
+    assert build(tmp_path, ["room-uniform"], log=logged.append) == [tmp_path / "room-uniform"]
+    assert logged == ["room-uniform: written meanwhile by another run; using it"]
+    monkeypatch.setattr(rb, "generate_scene", lambda cfg: loser(cfg, width=160))
+    with pytest.raises(OutputTakenError):  # someone wrote another scene there: not used
+        build(tmp_path, ["room-patchy"], log=logged.append)
+    with pytest.raises(DataError, match="cannot be reused"):  # and a later build refuses it
+        build(tmp_path, ["room-patchy"], log=logged.append)
+
+
 def test_rows_average_seeds_and_targets_name_the_worst_scene():
     results = {
         42: [_r("a", "tri-dehaze", 24.0, medium={"t_mae": 0.04, "s_mae": 0.02}, observable={"psnr": 26.0, "share": 0.8}),
