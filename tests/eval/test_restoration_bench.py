@@ -127,7 +127,9 @@ def test_a_scene_written_meanwhile_by_another_run_is_used_when_it_is_the_same_sc
         settings = {k: (str(v) if k == "output_dir" else v) for k, v in asdict(written).items()}
         meta = {"generator_version": GENERATOR_VERSION, "settings": settings}
         (cfg.output_dir / "synth_meta.json").write_text(json.dumps(meta))
-        raise OutputTakenError("output folder was filled by someone else while writing", where=str(cfg.output_dir))
+        raise OutputTakenError(
+            "output folder was filled by someone else while writing", where=str(cfg.output_dir)
+        )
 
     logged = []
     monkeypatch.setattr(rb, "generate_scene", loser)
