@@ -24,6 +24,9 @@ if TYPE_CHECKING:
     from components.rasterizers.base import RasterizeOutput, Rasterizer
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
+GEOMETRY_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits")
+"""The parameters that place and shape each Gaussian; :meth:`GaussianModel.set_geometry_trainable`
+holds them while the colours go on learning."""
 """Every parameter of a :class:`GaussianModel`, in a fixed order (first dim is always N)."""
 
 
@@ -215,6 +218,12 @@ class GaussianModel(nn.Module):
 
     def attribute(self, name: str) -> Tensor:
         return self.params[name]
+
+    def set_geometry_trainable(self, on: bool) -> None:
+        """Hold or free the geometry (:data:`GEOMETRY_NAMES`). Held parameters get no gradient, so
+        Adam leaves them as they are (no momentum step) and densification sees no statistics."""
+        for name in GEOMETRY_NAMES:
+            self.params[name].requires_grad_(on)
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:
         """Every parameter with its learning rate, so the trainer builds optimizers generically."""

@@ -278,6 +278,12 @@ class GaussianPipelineConfig(PipelineConfig):
     frozen (with ``composite.depth_gradient`` they do: the default's T at the rendered depth moved
     0.028 -> 0.036-0.040 on courtyard-dense over Stage II, benchmarks/stage_two_change.py). Measured
     -0.03 / -0.03 dB (seeds 42 / 7), the drift unchanged: it is not the composite's gradient (session 53)."""
+    stage_two_geometry: Literal["free", "held"] = "free"
+    """``held``: Stage II fits only the Gaussians' colours; their positions, shapes and opacities
+    stay as at the freeze. With the medium frozen, a Gaussian moving changes the depth each pixel is
+    marched to and so its T and S: Stage II's free geometry let the haze drift (courtyard-dense's T
+    MAE 0.028 -> 0.036-0.040, session 53), which detaching only the composite's depth did not stop.
+    Densification, pruning and opacity resets scheduled past the freeze are skipped too."""
     medium_start: Literal[
         "dark-channel", "reference", "reference-mean", "reference-extinction", "reference-light"
     ] = "dark-channel"
@@ -725,6 +731,7 @@ class GaussianPipeline(Pipeline):
         if self.light_flat.due(step):
             self._flatten_light(lights)
         self.medium.set_trainable(self._medium_trainable(step), self.model)
+        self.model.set_geometry_trainable(not self._geometry_held(step))
         if (cfg.medium_coarse_to_fine > 0 or cfg.medium_freeze_blur > 0) and self.medium.band_limits:
             self.medium.set_band_limit(self._band_limit(step))
         idx = dm.train_index(step)
@@ -960,9 +967,16 @@ class GaussianPipeline(Pipeline):
             self.densifier.observe_loss(self._photometric)
 
     def after_optimizer_step(self, step: int, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+        if self._geometry_held(step):  # no growth, pruning or opacity reset either
+            self.last_refine = {}
+            return
         self.last_refine = self.densifier.step(step, self.model, optimizers)
         if self.floater_pruning.due(step):
             self.last_refine["floaters"] = self._prune_floaters(optimizers)
+
+    def _geometry_held(self, step: int) -> bool:
+        """Whether the Gaussians' geometry is held at ``step`` (``stage_two_geometry held``)."""
+        return self.stage_at(step) == 2 and self.config.stage_two_geometry == "held"
 
     @torch.no_grad()
     def _prune_floaters(self, optimizers: dict[str, torch.optim.Optimizer]) -> int:

@@ -300,6 +300,35 @@ def test_medium_frozen_in_stage_two_and_held_at_start(hazy_scene, tmp_path, devi
     assert int(pipe.stage) == 2
 
 
+@pytest.mark.parametrize("geometry", ["free", "held"])
+def test_stage_two_holds_the_geometry_only_when_asked(hazy_scene, tmp_path, device, geometry):
+    """``--pipeline.stage-two-geometry held``: after the freeze only the colours learn, and
+    refinement and opacity resets scheduled past it (a reset at step 6 here) are skipped."""
+    from components.gaussians.model import GEOMETRY_NAMES
+
+    cfg = _config(hazy_scene, tmp_path, device, "--pipeline.freeze-step", "4",
+                  "--pipeline.stage-two-geometry", geometry, "--pipeline.densify.refine-start", "1",
+                  "--pipeline.densify.refine-every", "1", "--pipeline.densify.refine-stop", "8",
+                  "--pipeline.densify.reset-every", "6", steps=8)  # fmt: skip
+    from rich.console import Console
+
+    trainer = Trainer(cfg, console=Console(quiet=True))
+    trainer.setup()
+    pipe, opt = trainer.pipeline, trainer.optimizers
+    snap = []
+    for step in range(8):
+        snap.append({k: v.detach().clone() for k, v in pipe.model.params.items()})
+        optimization_step(pipe, opt, step)
+    snap.append({k: v.detach().clone() for k, v in pipe.model.params.items()})
+    stage_one = [k for k in GEOMETRY_NAMES if not torch.equal(snap[2][k], snap[4][k])]
+    stage_two = [k for k in GEOMETRY_NAMES if not torch.equal(snap[4][k], snap[8][k])]
+    assert stage_one == list(GEOMETRY_NAMES)  # Stage I moves every geometry parameter
+    assert stage_two == ([] if geometry == "held" else list(GEOMETRY_NAMES))
+    assert not torch.equal(snap[4]["sh0"], snap[8]["sh0"])  # the colours learn in Stage II either way
+    if geometry == "held":
+        assert snap[4]["means"].shape == snap[8]["means"].shape
+
+
 def test_checkpoint_holds_stage_and_reloads(hazy_scene, tmp_path, device):
     trainer = _train(_config(hazy_scene, tmp_path, device))
     run = load_run(trainer.run_dir / "config.yml", device=device)
