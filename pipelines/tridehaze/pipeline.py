@@ -283,7 +283,11 @@ class GaussianPipelineConfig(PipelineConfig):
     stay as at the freeze. With the medium frozen, a Gaussian moving changes the depth each pixel is
     marched to and so its T and S: Stage II's free geometry let the haze drift (courtyard-dense's T
     MAE 0.028 -> 0.036-0.040, session 53), which detaching only the composite's depth did not stop.
-    Densification, pruning and opacity resets scheduled past the freeze are skipped too."""
+    Densification, pruning and opacity resets scheduled past the freeze are skipped too. Paired by
+    continuing the default's runs from the freeze (session 65): benchmark +0.40 / +0.42 dB (seeds
+    42 / 7; courtyard-dense +1.66 / +1.52, the rest -0.11 to +1.11), but holdout -0.20 / -0.14 (7 of
+    10 lower, reconstruction lower on 9) and hazed beer -1.7 to -2.6 on all four runs (its T at the
+    rendered depth improves in Stage II): an option, off (docs/results/stage_two_geometry_held.md)."""
     medium_start: Literal[
         "dark-channel", "reference", "reference-mean", "reference-extinction", "reference-light"
     ] = "dark-channel"
