@@ -60,7 +60,10 @@ def freeze_step(run: Path) -> int:
     continued)."""
     freeze = freeze_step_of(load_config(run / "config.yml"))
     if not checkpoint_path(run, freeze).is_file():
-        raise SystemExit(f"{run}: no checkpoint at the freeze (step {freeze}); save every 750 steps")
+        raise SystemExit(
+            f"{run}: no checkpoint at the freeze (step {freeze}); runs trained before session 65 may "
+            "have rotated it away: retrain, or leave the run out"
+        )
     return freeze
 
 

@@ -1,8 +1,8 @@
 """What Stage II does to the restoration: a trained run scored at its freeze and at its end.
 
-Stage II freezes the medium and lets the Gaussians go on under MD-TGC. With the freeze checkpoint
-kept (``td-bench restoration`` saves every 750 steps and keeps the last two, so a 3000-step run
-with the freeze at 0.75 has it), both checkpoints are evaluated on the test views: restoration
+Stage II freezes the medium and lets the Gaussians go on under MD-TGC. The freeze checkpoint is
+always written and kept (the pipeline's milestone; runs trained before session 65 kept it only when
+no time-based save pushed it out), and both checkpoints are evaluated on the test views: restoration
 PSNR, the PSNR of the observable pixels (true T >= 0.05), T MAE at the rendered and at the true
 depth. The medium is the same at both; T at the rendered depth moves only with the Gaussians.
 

@@ -8,6 +8,7 @@ import pickle
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,8 +52,11 @@ def checkpoint_path(run_dir: Path, step: int) -> Path:
     return run_dir / "checkpoints" / f"step-{step:07d}.ckpt"
 
 
-def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
-    """Write ``payload`` to ``path`` via a temporary file and rename; keep the newest ``keep`` files."""
+def save_checkpoint(
+    path: Path, payload: dict[str, Any], keep: int = 2, protected: Iterable[Path] = ()
+) -> Path:
+    """Write ``payload`` to ``path`` via a temporary file and rename; keep the newest ``keep`` files
+    besides the ``protected`` ones, which are never removed."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".ckpt", dir=path.parent)
     try:
@@ -73,7 +77,9 @@ def save_checkpoint(path: Path, payload: dict[str, Any], keep: int = 2) -> Path:
             ) from None
         raise
     if keep > 0:
-        for old in sorted(path.parent.glob(CHECKPOINT_GLOB))[:-keep]:
+        kept = {Path(p).name for p in protected}
+        rotating = [p for p in sorted(path.parent.glob(CHECKPOINT_GLOB)) if p.name not in kept]
+        for old in rotating[:-keep]:
             old.unlink(missing_ok=True)
     for stale in path.parent.glob(".tmp-*.ckpt"):  # left by a process killed mid-write (SIGKILL)
         stale.unlink(missing_ok=True)

@@ -104,6 +104,12 @@ class Pipeline(nn.Module, ABC):
         evaluation's medium-recovery protocol compares with the dataset's true maps."""
         return False
 
+    def milestone_steps(self) -> tuple[int, ...]:
+        """Steps (counted as completed steps, like checkpoint names) whose checkpoint the trainer
+        always writes and never rotates away: a stage boundary that analyses and ablations of the
+        later stage resume from (``benchmarks/stage_two_arm.py``). None by default."""
+        return ()
+
     def stats(self) -> dict[str, float | int]:
         """Scalars worth showing (e.g. Gaussian count)."""
         return {}

@@ -263,6 +263,7 @@ class Trainer:
         self._metrics: dict[str, float] = {}
         self._start = self._last_save = time.perf_counter()
         self._save_interval = 60.0 * cfg.minutes_per_save / 5  # the first soon after the start
+        self._milestones = set(self.pipeline.milestone_steps())
         done = self.start_step
         progress = self._progress_bar()
         with progress, log_path.open("a", encoding="utf-8") as log:
@@ -278,7 +279,8 @@ class Trainer:
                         self._record(done, log)
                     if ok and self._stop_early(done, log):
                         break
-                    if done == cfg.max_steps or (ok and (done % cfg.steps_per_save == 0 or self._save_due())):
+                    due = ok and (done % cfg.steps_per_save == 0 or self._save_due())
+                    if done == cfg.max_steps or done in self._milestones or due:
                         self.save(done)
             except KeyboardInterrupt:
                 progress.stop()
@@ -438,8 +440,12 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             **self._elapsed().to_payload(),
         }
+        milestones = [checkpoint_path(self.run_dir, s) for s in self.pipeline.milestone_steps()]
         path = save_checkpoint(
-            checkpoint_path(self.run_dir, step), payload, keep=self.config.checkpoints_to_keep
+            checkpoint_path(self.run_dir, step),
+            payload,
+            keep=self.config.checkpoints_to_keep,
+            protected=milestones,
         )
         self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save
         record = {"step": step, "seconds": round(self._last_save - t0, 4), "bytes": path.stat().st_size}

@@ -978,6 +978,12 @@ class GaussianPipeline(Pipeline):
         if self.floater_pruning.due(step):
             self.last_refine["floaters"] = self._prune_floaters(optimizers)
 
+    def milestone_steps(self) -> tuple[int, ...]:
+        """The freeze: Stage II ablations and ``benchmarks/stage_two_change.py`` start from it."""
+        if not self.medium.has_medium or not 0 < self.freeze_step < self.max_steps:
+            return ()
+        return (self.freeze_step,)
+
     def _geometry_held(self, step: int) -> bool:
         """Whether the Gaussians' geometry is held at ``step`` (``stage_two_geometry held``)."""
         return self.stage_at(step) == 2 and self.config.stage_two_geometry == "held"

@@ -329,6 +329,20 @@ def test_stage_two_holds_the_geometry_only_when_asked(hazy_scene, tmp_path, devi
         assert snap[4]["means"].shape == snap[8]["means"].shape
 
 
+def test_the_freeze_checkpoint_is_always_written_and_kept(hazy_scene, tmp_path, device):
+    """Stage II ablations resume from the freeze (benchmarks/stage_two_arm.py): its checkpoint is
+    written though off the save schedule and survives the rotation (two kept by default)."""
+    cfg = _config(
+        hazy_scene, tmp_path, device, "--pipeline.freeze-step", "3", "--steps-per-save", "2", steps=8
+    )
+    trainer = _train(cfg)
+    assert trainer.pipeline.milestone_steps() == (3,)
+    names = sorted(p.name for p in (trainer.run_dir / "checkpoints").iterdir())
+    assert names == ["step-0000003.ckpt", "step-0000006.ckpt", "step-0000008.ckpt"]
+    none = _config(hazy_scene, tmp_path / "none", device, "--pipeline.medium.backend", "none", steps=8)
+    assert _train(none).pipeline.milestone_steps() == ()  # nothing freezes
+
+
 def test_checkpoint_holds_stage_and_reloads(hazy_scene, tmp_path, device):
     trainer = _train(_config(hazy_scene, tmp_path, device))
     run = load_run(trainer.run_dir / "config.yml", device=device)
