@@ -285,7 +285,7 @@ class GaussianPipelineConfig(PipelineConfig):
     MAE 0.028 -> 0.036-0.040, session 53), which detaching only the composite's depth did not stop.
     Densification, pruning and opacity resets scheduled past the freeze are skipped too. Paired by
     continuing the default's runs from the freeze (session 65): benchmark +0.40 / +0.42 dB (seeds
-    42 / 7; courtyard-dense +1.66 / +1.52, the rest -0.11 to +1.11), but holdout -0.20 / -0.14 (7 of
+    42 / 7; courtyard-dense +1.66 / +1.52, the rest -0.11 to +1.11), but holdout -0.20 / -0.14 (8 of
     10 lower, reconstruction lower on 9) and hazed beer -1.7 to -2.6 on all four runs (its T at the
     rendered depth improves in Stage II): an option, off (docs/results/stage_two_geometry_held.md)."""
     medium_start: Literal[
