@@ -24,10 +24,10 @@ if TYPE_CHECKING:
     from components.rasterizers.base import RasterizeOutput, Rasterizer
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
+"""Every parameter of a :class:`GaussianModel`, in a fixed order (first dim is always N)."""
 GEOMETRY_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits")
 """The parameters that place and shape each Gaussian; :meth:`GaussianModel.set_geometry_trainable`
 holds them while the colours go on learning."""
-"""Every parameter of a :class:`GaussianModel`, in a fixed order (first dim is always N)."""
 
 
 @dataclass

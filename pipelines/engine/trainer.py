@@ -440,12 +440,11 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             **self._elapsed().to_payload(),
         }
-        milestones = [checkpoint_path(self.run_dir, s) for s in self.pipeline.milestone_steps()]
         path = save_checkpoint(
             checkpoint_path(self.run_dir, step),
             payload,
             keep=self.config.checkpoints_to_keep,
-            protected=milestones,
+            protected=[checkpoint_path(self.run_dir, s) for s in self._milestones],
         )
         self._last_save, self._save_interval = time.perf_counter(), 60.0 * self.config.minutes_per_save
         record = {"step": step, "seconds": round(self._last_save - t0, 4), "bytes": path.stat().st_size}
