@@ -83,6 +83,11 @@ class Pipeline(nn.Module, ABC):
         the optimizer config's; none by default."""
         return {}
 
+    def lr_scales(self, step: int) -> dict[str, float]:
+        """Factors on the base learning rates of the named groups at ``step`` (a function of the
+        step, so a resumed run gets the same rates); none by default."""
+        return {}
+
     def after_backward(self, step: int) -> None:  # noqa: B027 - optional hook
         """Hook after ``loss.backward()`` (e.g. collect densification statistics)."""
 

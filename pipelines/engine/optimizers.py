@@ -52,12 +52,19 @@ class Optimizers:
         for opt in self.optimizers.values():
             opt.step()
 
-    def schedule(self, step: int) -> None:
-        """Set learning rates for ``step`` (only ``means`` decays)."""
+    def schedule(self, step: int, scales: dict[str, float] | None = None) -> None:
+        """Set learning rates for ``step``: ``means`` decays; ``scales`` multiplies the base rate of
+        the groups it names (a pipeline's :meth:`Pipeline.lr_scales`), the others keep theirs."""
+        factors = dict(scales or {})
+        unknown = sorted(set(factors) - set(self.optimizers))
+        if unknown:
+            raise ValueError(f"learning-rate scales given for unknown parameter groups {unknown}")
         if "means" in self.optimizers:
-            ratio = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
-            for g in self.optimizers["means"].param_groups:
-                g["lr"] = self.base_lr["means"] * ratio
+            decay = self.config.means_lr_final_ratio ** (min(step, self.max_steps) / self.max_steps)
+            factors["means"] = factors.get("means", 1.0) * decay
+        for name, factor in factors.items():
+            for g in self.optimizers[name].param_groups:
+                g["lr"] = self.base_lr[name] * factor
 
     def state_dict(self) -> dict:
         return {name: opt.state_dict() for name, opt in self.optimizers.items()}

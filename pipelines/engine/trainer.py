@@ -92,7 +92,7 @@ def optimization_step(
 
     ``accept(loss)`` returning False (e.g. a non-finite gradient) skips the hooks and the update.
     """
-    optimizers.schedule(step)
+    optimizers.schedule(step, pipeline.lr_scales(step))
     result = pipeline.train_loss(step)
     optimizers.zero_grad()
     result.loss.backward()

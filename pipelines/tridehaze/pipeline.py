@@ -251,6 +251,12 @@ class GaussianPipelineConfig(PipelineConfig):
     strong bound acts from here to the freeze and only ever thins the medium, so this also sets
     its dose (``tri-dehaze``: 0.5 with the freeze at 0.75; docs/results/medium_recovery.md,
     session 39)."""
+    medium_late_lr_scale: Annotated[float, Positive] = 1.0
+    """The medium's learning rates times this from the one-light verdict
+    (``light-decision-fraction``) to the freeze. The medium is still short of where its photos put
+    it at the freeze on the rooms and the patchy media (a medium 3x as fast throughout restores
+    their surfaces better), but faster before the verdict it reads the light's spread lower and
+    flips it (docs/results/medium_recovery.md, session 66). 1.0: the rates as configured."""
     lambda_path_extinction: Annotated[float, NonNegative] = 0.0
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
@@ -963,6 +969,14 @@ class GaussianPipeline(Pipeline):
 
     def adam_eps(self) -> dict[str, float]:
         return self.medium.adam_eps()
+
+    def lr_scales(self, step: int) -> dict[str, float]:
+        """``medium-late-lr-scale`` on every medium group from the verdict to the freeze."""
+        scale = self.config.medium_late_lr_scale
+        if scale == 1.0:
+            return {}
+        late = self.light_isotropy.decision_step <= step < self.freeze_step
+        return dict.fromkeys(self.medium.param_groups(), scale if late else 1.0)
 
     def after_backward(self, step: int) -> None:
         if self._last is not None:

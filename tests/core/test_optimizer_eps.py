@@ -38,3 +38,16 @@ def test_eps_slows_only_the_weakly_pulled(eps: float, weak_ratio: float) -> None
     moved_weak, moved_strong = float(weak.detach().abs().max()), float(strong.detach().abs().max())
     assert moved_strong == pytest.approx(0.05, rel=1e-3)  # 5 steps at the rate (Adam's sign-like step)
     assert moved_weak / moved_strong == pytest.approx(weak_ratio, rel=0.05)
+
+
+def test_scales_multiply_the_named_groups_base_rate_and_return_to_it() -> None:
+    """A pipeline's ``lr_scales``: the named group at its base rate times the factor, the others as
+    they were, and a factor of 1 restores the base rate (the scales are a function of the step)."""
+    opts = Optimizers(_groups(), OptimizerConfig(), max_steps=10)
+    opts.schedule(3, {"weak": 3.0})
+    assert opts.optimizers["weak"].param_groups[0]["lr"] == pytest.approx(0.03)
+    assert opts.optimizers["strong"].param_groups[0]["lr"] == pytest.approx(0.01)
+    opts.schedule(4, {"weak": 1.0})
+    assert opts.optimizers["weak"].param_groups[0]["lr"] == pytest.approx(0.01)
+    with pytest.raises(ValueError, match="unknown parameter groups"):
+        opts.schedule(5, {"medium.features": 2.0})

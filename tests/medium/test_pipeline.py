@@ -132,6 +132,34 @@ def test_a_light_decision_due_after_the_freeze_comes_halfway_through_stage_one(h
     assert built[2, "0.5"][0] is False  # held to step 3, frozen at 2: the medium never learns
 
 
+def test_the_late_medium_rate_acts_from_the_verdict_to_the_freeze(hazy_scene, tmp_path, device):
+    """``--pipeline.medium-late-lr-scale``: every medium group (and only those) at its base rate
+    times the scale from the one-light verdict up to the freeze, at its base rate elsewhere."""
+    from rich.console import Console
+
+    from pipelines.engine.trainer import optimization_step
+
+    cfg = _config(hazy_scene, tmp_path, device, "--pipeline.medium-late-lr-scale", "3",
+                  "--pipeline.freeze-step", "5", "--pipeline.light-decision-fraction", "0.34")  # fmt: skip
+    trainer = Trainer(cfg, console=Console(quiet=True))
+    trainer.setup()
+    pipe = trainer.pipeline
+    decide, freeze = pipe.light_isotropy.decision_step, pipe.freeze_step
+    assert 0 < decide < freeze
+    medium = set(pipe.medium.param_groups())
+    assert medium and set(pipe.lr_scales(decide)) == medium
+    assert set(pipe.lr_scales(decide - 1).values()) == {1.0}
+    assert set(pipe.lr_scales(decide).values()) == {3.0} == set(pipe.lr_scales(freeze - 1).values())
+    assert set(pipe.lr_scales(freeze).values()) == {1.0}
+    optimization_step(pipe, trainer.optimizers, decide)  # the trainer's step sets the rates
+    lrs = {name: trainer.optimizers.optimizers[name].param_groups[0]["lr"] for name in medium}
+    assert lrs == {name: pytest.approx(3 * trainer.optimizers.base_lr[name]) for name in medium}
+    default = _config(hazy_scene, tmp_path / "default", device)
+    plain = Trainer(default, console=Console(quiet=True))
+    plain.setup()
+    assert plain.pipeline.lr_scales(decide) == {}
+
+
 @pytest.mark.parametrize("backend", ["triplane", "gaussian-bound"])
 def test_the_light_colour_fit_is_made_once_at_the_freeze_and_logged(
     hazy_scene, tmp_path, device, backend, monkeypatch
