@@ -256,7 +256,9 @@ class GaussianPipelineConfig(PipelineConfig):
     (``light-decision-fraction``) to the freeze. The medium is still short of where its photos put
     it at the freeze on the rooms and the patchy media (a medium 3x as fast throughout restores
     their surfaces better), but faster before the verdict it reads the light's spread lower and
-    flips it (docs/results/medium_recovery.md, session 66). 1.0: the rates as configured."""
+    flips it (docs/results/medium_recovery.md, session 66). At 3: benchmark +0.21 / +0.10 dB
+    (seeds 42 / 7; dense haze under the strong bound thins too far, courtyard-dense -0.6 / -0.9),
+    holdout -0.11 (seed 42; room-dense -1.0): session 67. 1.0: the rates as configured."""
     lambda_path_extinction: Annotated[float, NonNegative] = 0.0
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
