@@ -259,6 +259,10 @@ class GaussianPipelineConfig(PipelineConfig):
     flips it (docs/results/medium_recovery.md, session 66). At 3: benchmark +0.21 / +0.10 dB
     (seeds 42 / 7; dense haze under the strong bound thins too far, courtyard-dense -0.6 / -0.9),
     holdout -0.11 (seed 42; room-dense -1.0): session 67. 1.0: the rates as configured."""
+    medium_late_lr_groups: tuple[str, ...] = ()
+    """The medium's optimizer groups ``medium-late-lr-scale`` acts on, by name (``medium.features``:
+    a grid backend's features; the others as a checkpoint names them); empty: all of them. A faster
+    grid alone kept dense haze where faster heads and kappa thinned it (session 66)."""
     lambda_path_extinction: Annotated[float, NonNegative] = 0.0
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
@@ -617,6 +621,13 @@ class GaussianPipeline(Pipeline):
                     f"--pipeline.medium-{flag} low-passes a grid; the {cfg.medium.backend!r} medium has none",
                     fix=f"use --pipeline.medium.backend triplane or voxel, or leave --pipeline.medium-{flag} at 0",
                 )
+        unknown = sorted(set(cfg.medium_late_lr_groups) - set(medium.param_groups()))
+        if unknown:
+            raise ConfigError(
+                f"--pipeline.medium-late-lr-groups names {unknown}, which the {cfg.medium.backend!r} "
+                f"medium does not have",
+                fix=f"name some of {sorted(medium.param_groups())}, or none for all of them",
+            )
         return medium
 
     def _light_verdict(self, max_steps: int) -> LightIsotropy:
@@ -973,12 +984,13 @@ class GaussianPipeline(Pipeline):
         return self.medium.adam_eps()
 
     def lr_scales(self, step: int) -> dict[str, float]:
-        """``medium-late-lr-scale`` on every medium group from the verdict to the freeze."""
+        """``medium-late-lr-scale`` on the chosen medium groups from the verdict to the freeze."""
         scale = self.config.medium_late_lr_scale
         if scale == 1.0:
             return {}
         late = self.light_isotropy.decision_step <= step < self.freeze_step
-        return dict.fromkeys(self.medium.param_groups(), scale if late else 1.0)
+        groups = self.config.medium_late_lr_groups or tuple(self.medium.param_groups())
+        return dict.fromkeys(groups, scale if late else 1.0)
 
     def after_backward(self, step: int) -> None:
         if self._last is not None:

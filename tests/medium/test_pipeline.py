@@ -160,6 +160,34 @@ def test_the_late_medium_rate_acts_from_the_verdict_to_the_freeze(hazy_scene, tm
     assert plain.pipeline.lr_scales(decide) == {}
 
 
+def test_the_late_medium_rate_can_act_on_the_grid_alone(hazy_scene, tmp_path, device):
+    """``--pipeline.medium-late-lr-groups medium.features``: the grid's features scaled, the heads,
+    light and kappa at their base rates; a group the medium lacks is refused at setup."""
+    from rich.console import Console
+
+    from pipelines.engine.trainer import optimization_step
+    from tridehaze_plugin.errors import ConfigError
+
+    late = ("--pipeline.medium-late-lr-scale", "3", "--pipeline.freeze-step", "5",
+            "--pipeline.light-decision-fraction", "0.34")  # fmt: skip
+    cfg = _config(hazy_scene, tmp_path, device, *late, "--pipeline.medium-late-lr-groups", "medium.features")
+    trainer = Trainer(cfg, console=Console(quiet=True))
+    trainer.setup()
+    pipe = trainer.pipeline
+    decide = pipe.light_isotropy.decision_step
+    assert pipe.lr_scales(decide) == {"medium.features": 3.0}
+    assert pipe.lr_scales(pipe.freeze_step) == {"medium.features": 1.0}
+    optimization_step(pipe, trainer.optimizers, decide)
+    base = trainer.optimizers.base_lr
+    lrs = {name: trainer.optimizers.optimizers[name].param_groups[0]["lr"] for name in pipe.medium.param_groups()}
+    others = set(lrs) - {"medium.features"}
+    assert others and all(lrs[name] == pytest.approx(base[name]) for name in others)
+    assert lrs["medium.features"] == pytest.approx(3 * base["medium.features"])
+    wrong = _config(hazy_scene, tmp_path / "wrong", device, *late, "--pipeline.medium-late-lr-groups", "medium.grid")
+    with pytest.raises(ConfigError, match="medium.grid"):
+        Trainer(wrong, console=Console(quiet=True)).setup()
+
+
 @pytest.mark.parametrize("backend", ["triplane", "gaussian-bound"])
 def test_the_light_colour_fit_is_made_once_at_the_freeze_and_logged(
     hazy_scene, tmp_path, device, backend, monkeypatch
