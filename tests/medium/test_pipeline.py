@@ -179,11 +179,15 @@ def test_the_late_medium_rate_can_act_on_the_grid_alone(hazy_scene, tmp_path, de
     assert pipe.lr_scales(pipe.freeze_step) == {"medium.features": 1.0}
     optimization_step(pipe, trainer.optimizers, decide)
     base = trainer.optimizers.base_lr
-    lrs = {name: trainer.optimizers.optimizers[name].param_groups[0]["lr"] for name in pipe.medium.param_groups()}
+    lrs = {
+        name: trainer.optimizers.optimizers[name].param_groups[0]["lr"] for name in pipe.medium.param_groups()
+    }
     others = set(lrs) - {"medium.features"}
     assert others and all(lrs[name] == pytest.approx(base[name]) for name in others)
     assert lrs["medium.features"] == pytest.approx(3 * base["medium.features"])
-    wrong = _config(hazy_scene, tmp_path / "wrong", device, *late, "--pipeline.medium-late-lr-groups", "medium.grid")
+    wrong = _config(
+        hazy_scene, tmp_path / "wrong", device, *late, "--pipeline.medium-late-lr-groups", "medium.grid"
+    )
     with pytest.raises(ConfigError, match="medium.grid"):
         Trainer(wrong, console=Console(quiet=True)).setup()
 
