@@ -263,6 +263,10 @@ class GaussianPipelineConfig(PipelineConfig):
     """The medium's optimizer groups ``medium-late-lr-scale`` acts on, by name (``medium.features``:
     a grid backend's features; the others as a checkpoint names them); empty: all of them. A faster
     grid alone kept dense haze where faster heads and kappa thinned it (session 66)."""
+    medium_late_lr_when: Literal["always", "one-light"] = "always"
+    """Which runs ``medium-late-lr-scale`` acts on: every run, or only those the verdict judged one
+    light (from the step after it). A faster light gained on the rooms (one light) and lost the
+    sunlit field's sky (session 68)."""
     lambda_path_extinction: Annotated[float, NonNegative] = 0.0
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
@@ -988,7 +992,10 @@ class GaussianPipeline(Pipeline):
         scale = self.config.medium_late_lr_scale
         if scale == 1.0:
             return {}
-        late = self.light_isotropy.decision_step <= step < self.freeze_step
+        iso = self.light_isotropy
+        late = iso.decision_step <= step < self.freeze_step
+        if self.config.medium_late_lr_when == "one-light":  # read after the verdict's own step took it
+            late = late and step > iso.decision_step and iso.judged_one_light()
         groups = self.config.medium_late_lr_groups or tuple(self.medium.param_groups())
         return dict.fromkeys(groups, scale if late else 1.0)
 

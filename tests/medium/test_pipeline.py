@@ -160,9 +160,10 @@ def test_the_late_medium_rate_acts_from_the_verdict_to_the_freeze(hazy_scene, tm
     assert plain.pipeline.lr_scales(decide) == {}
 
 
-def test_the_late_medium_rate_can_act_on_the_grid_alone(hazy_scene, tmp_path, device):
+def test_the_late_medium_rate_can_act_on_chosen_groups_and_runs(hazy_scene, tmp_path, device, monkeypatch):
     """``--pipeline.medium-late-lr-groups medium.features``: the grid's features scaled, the heads,
-    light and kappa at their base rates; a group the medium lacks is refused at setup."""
+    light and kappa at their base rates; ``--pipeline.medium-late-lr-when one-light``: only once the
+    verdict (read the step after it) says one light; a group the medium lacks is refused at setup."""
     from rich.console import Console
 
     from pipelines.engine.trainer import optimization_step
@@ -185,6 +186,19 @@ def test_the_late_medium_rate_can_act_on_the_grid_alone(hazy_scene, tmp_path, de
     others = set(lrs) - {"medium.features"}
     assert others and all(lrs[name] == pytest.approx(base[name]) for name in others)
     assert lrs["medium.features"] == pytest.approx(3 * base["medium.features"])
+    gated = _config(
+        hazy_scene, tmp_path / "gated", device, *late, "--pipeline.medium-late-lr-when", "one-light"
+    )
+    trainer = Trainer(gated, console=Console(quiet=True))
+    trainer.setup()
+    pipe = trainer.pipeline
+    for one_light in (True, False):
+        monkeypatch.setattr(pipe.light_isotropy, "judged_one_light", lambda one_light=one_light: one_light)
+        scales = {
+            pipe.lr_scales(step)["medium.heads.log_kappa"] for step in (decide + 1, pipe.freeze_step - 1)
+        }
+        assert scales == ({3.0} if one_light else {1.0})
+        assert set(pipe.lr_scales(decide).values()) == {1.0}  # the verdict's own step: not yet read
     wrong = _config(
         hazy_scene, tmp_path / "wrong", device, *late, "--pipeline.medium-late-lr-groups", "medium.grid"
     )
