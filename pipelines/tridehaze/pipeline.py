@@ -265,8 +265,9 @@ class GaussianPipelineConfig(PipelineConfig):
     grid alone kept dense haze where faster heads and kappa thinned it (session 66)."""
     medium_late_lr_when: Literal["always", "one-light"] = "always"
     """Which runs ``medium-late-lr-scale`` acts on: every run, or only those the verdict judged one
-    light (from the step after it). A faster light gained on the rooms (one light) and lost the
-    sunlit field's sky (session 68)."""
+    light (from the step after it). A faster light alone gained on the rooms (one light) and lost
+    the sunlit field's sky; kept to one-light runs, the holdout set lost -0.08 (seed 42; room-dense
+    -0.43): session 68."""
     lambda_path_extinction: Annotated[float, NonNegative] = 0.0
     """Weight of the medium-texture prior (while the medium learns; 0 = off): the squared
     difference, relative to the view's mean, of the mean extinction tau / z along adjacent pixels'
