@@ -261,8 +261,10 @@ class GaussianPipelineConfig(PipelineConfig):
     holdout -0.11 (seed 42; room-dense -1.0): session 67. 1.0: the rates as configured."""
     medium_late_lr_groups: tuple[str, ...] = ()
     """The medium's optimizer groups ``medium-late-lr-scale`` acts on, by name (``medium.features``:
-    a grid backend's features; the others as a checkpoint names them); empty: all of them. A faster
-    grid alone kept dense haze where faster heads and kappa thinned it (session 66)."""
+    a grid backend's features; the others as a checkpoint names them); empty: all of them. At 3x
+    (session 68): the grid alone -0.20 dB, the extinction's head and kappa -0.24 (seed 42); the
+    light alone (``medium.heads.light_*``) +0.02 / +0.13 (seeds 42 / 7): the rooms gain, the
+    sunlit field's sky loses."""
     medium_late_lr_when: Literal["always", "one-light"] = "always"
     """Which runs ``medium-late-lr-scale`` acts on: every run, or only those the verdict judged one
     light (from the step after it). A faster light alone gained on the rooms (one light) and lost
