@@ -28,6 +28,8 @@ PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits"
 GEOMETRY_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits")
 """The parameters that place and shape each Gaussian; :meth:`GaussianModel.set_geometry_trainable`
 holds them while the colours go on learning."""
+COLOUR_NAMES: tuple[str, ...] = ("sh0", "shN")
+"""The colour parameters; :meth:`GaussianModel.set_colour_trainable` holds them."""
 
 
 @dataclass
@@ -223,6 +225,11 @@ class GaussianModel(nn.Module):
         """Hold or free the geometry (:data:`GEOMETRY_NAMES`). Held parameters get no gradient, so
         Adam leaves them as they are (no momentum step) and densification sees no statistics."""
         for name in GEOMETRY_NAMES:
+            self.params[name].requires_grad_(on)
+
+    def set_colour_trainable(self, on: bool) -> None:
+        """Hold or free the colours (:data:`COLOUR_NAMES`), as :meth:`set_geometry_trainable`."""
+        for name in COLOUR_NAMES:
             self.params[name].requires_grad_(on)
 
     def param_groups(self) -> dict[str, tuple[nn.Parameter, float]]:

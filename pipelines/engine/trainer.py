@@ -95,7 +95,8 @@ def optimization_step(
     optimizers.schedule(step, pipeline.lr_scales(step))
     result = pipeline.train_loss(step)
     optimizers.zero_grad()
-    result.loss.backward()
+    if result.loss.requires_grad:  # a step where everything is held (e.g. ``scene-from``) learns nothing
+        result.loss.backward()
     if accept is not None and not accept(result.loss):
         return result, False
     pipeline.after_backward(step)

@@ -72,6 +72,7 @@ from pipelines.tridehaze.priors import (
 from pipelines.tridehaze.probe import probe_haze
 from pipelines.tridehaze.reference_start import PARTS as REFERENCE_PARTS
 from pipelines.tridehaze.reference_start import fit_to_reference
+from pipelines.tridehaze.scene_transplant import load_gaussians
 from pipelines.tridehaze.sky_shell import sky_shell
 from pipelines.tridehaze.true_depth_march import march_to_depth, trusted_medium
 from pipelines.tridehaze.warmup import warmup_depths
@@ -330,6 +331,15 @@ class GaussianPipelineConfig(PipelineConfig):
     default's own final medium the refitted scene ties on six of eight benchmark scenes (seeds 42, 7),
     so the joint fit does not damage the Gaussians (docs/results/medium_recovery.md, session 56).
     None: the medium starts from the dark channel's estimate and learns in Stage I."""
+    scene_from: Path | None = None
+    """Start from, and hold for the whole run, the Gaussians of this checkpoint of an earlier run on
+    the same data (a diagnosis, never a method: ``vanilla-gs`` trained on a generated scene's clean
+    photos gives the scene a haze-free capture would): no densification, and only the medium learns
+    (pipelines/tridehaze/scene_transplant.py). ``scene-from-holds geometry`` lets the colours learn.
+    None: the Gaussians start from the seed cloud."""
+    scene_from_holds: Literal["all", "geometry"] = "all"
+    """What of ``scene_from``'s Gaussians is held: ``all`` (only the medium learns) or ``geometry``
+    (means, rotations, scales and opacities; the colours learn through the medium)."""
     medium_learns_from: Literal["all", "true-depth"] = "all"
     """Which training pixels the medium's photometric gradient comes from: all, or ``true-depth`` (a
     diagnosis on td-synth data, never a method): only those whose rendered end depth is within
@@ -586,6 +596,9 @@ class GaussianPipeline(Pipeline):
         points, colors = self._with_ground_seeds(points, colors, scene.points)
         self.model = config.model.setup(points=points, colors=colors, scene_extent=self.scene_extent)
         self.model.to(datamanager.device)
+        if config.scene_from is not None and training:
+            step_n = load_gaussians(self.model, config.scene_from, scene.transform.to_dict())
+            self.init_info["scene_from_step"], self.init_info["scene_from_gaussians"] = step_n
         self.medium.attach(self.model)
         self.densifier = Densifier(config.densify, self.scene_extent, max_steps)
         self.floater_pruning = FloaterPruning.from_config(config)
@@ -762,6 +775,7 @@ class GaussianPipeline(Pipeline):
             self._flatten_light(lights)
         self.medium.set_trainable(self._medium_trainable(step), self.model)
         self.model.set_geometry_trainable(not self._geometry_held(step))
+        self.model.set_colour_trainable(cfg.scene_from is None or cfg.scene_from_holds == "geometry")
         if (cfg.medium_coarse_to_fine > 0 or cfg.medium_freeze_blur > 0) and self.medium.band_limits:
             self.medium.set_band_limit(self._band_limit(step))
         idx = dm.train_index(step)
@@ -1023,7 +1037,10 @@ class GaussianPipeline(Pipeline):
         return (self.freeze_step,)
 
     def _geometry_held(self, step: int) -> bool:
-        """Whether the Gaussians' geometry is held at ``step`` (``stage_two_geometry held``)."""
+        """Whether the Gaussians' geometry is held at ``step`` (``stage_two_geometry held``, or a
+        scene taken from another run: ``scene_from``)."""
+        if self.config.scene_from is not None:
+            return True
         return self.stage_at(step) == 2 and self.config.stage_two_geometry == "held"
 
     @torch.no_grad()
