@@ -101,15 +101,15 @@ def _value(result: dict, *keys: str) -> float | None:
 def arm_cell(runs: dict[int, dict]) -> dict:
     """Mean restoration PSNR over an arm's seeds of one scene, its spread, and T / S MAE."""
     psnrs = [v for v in (_value(r, "restoration", "psnr") for r in runs.values()) if v is not None]
-    t_mae = [v for v in (_value(r, "medium", "t_mae") for r in runs.values()) if v is not None]
-    s_mae = [v for v in (_value(r, "medium", "s_mae") for r in runs.values()) if v is not None]
-    return {
+    cell: dict = {
         "seeds": sorted(runs),
         "psnr": statistics.fmean(psnrs) if psnrs else None,
         "spread": max(psnrs) - min(psnrs) if len(psnrs) > 1 else None,
-        "t_mae": statistics.fmean(t_mae) if t_mae else None,
-        "s_mae": statistics.fmean(s_mae) if s_mae else None,
     }
+    for key in ("t_mae", "t_mae_true_depth", "s_mae"):
+        vals = [v for v in (_value(r, "medium", key) for r in runs.values()) if v is not None]
+        cell[key] = statistics.fmean(vals) if vals else None
+    return cell
 
 
 def rows_of(set_dir: Path, arms: list[tuple[str, Path, str]]) -> list[dict]:
@@ -129,7 +129,7 @@ def rows_of(set_dir: Path, arms: list[tuple[str, Path, str]]) -> list[dict]:
 
 def table(rows: list[dict], names: list[str]) -> str:
     head = "| scene | the photos with the true medium (best t0) | " + " | ".join(
-        f"{n}: PSNR (spread) / T MAE / S MAE" for n in names
+        f"{n}: PSNR (spread) / T MAE (at the true depth) / S MAE" for n in names
     )
     lines = [head + " |", "|" + "---|" * (len(names) + 2)]
     for r in rows:
@@ -138,14 +138,18 @@ def table(rows: list[dict], names: list[str]) -> str:
         for n in names:
             c = r["arms"][n]
             spread = f" ({fmt(c['spread'], 2)})" if c["spread"] is not None else ""
-            cells.append(f"{fmt(c['psnr'], 2)}{spread} / {fmt(c['t_mae'])} / {fmt(c['s_mae'])}")
+            t_cell = f"{fmt(c['t_mae'])} ({fmt(c['t_mae_true_depth'])})"
+            cells.append(f"{fmt(c['psnr'], 2)}{spread} / {t_cell} / {fmt(c['s_mae'])}")
         lines.append(f"| {r['scene']} | " + " | ".join(cells) + " |")
-    means = ["-"]
     bests = [r["true_inversion_best"][1] for r in rows if r["true_inversion_best"]]
-    means[0] = fmt(statistics.fmean(bests), 2) if len(bests) == len(rows) else "-"
+    means = [fmt(statistics.fmean(bests), 2) if bests and len(bests) == len(rows) else "-"]
     for n in names:
-        vals = [r["arms"][n]["psnr"] for r in rows]
-        means.append(fmt(statistics.fmean(vals), 2) if None not in vals else "-")
+        cells = [r["arms"][n] for r in rows]
+        mean = {k: [c[k] for c in cells] for k in ("psnr", "t_mae", "t_mae_true_depth", "s_mae")}
+        mean = {k: statistics.fmean(v) if v and None not in v else None for k, v in mean.items()}
+        means.append(
+            f"{fmt(mean['psnr'], 2)} / {fmt(mean['t_mae'])} ({fmt(mean['t_mae_true_depth'])}) / {fmt(mean['s_mae'])}"
+        )
     lines.append("| **mean** | " + " | ".join(means) + " |")
     note = (
         "\nRestoration PSNR in dB over each scene's test views, mean over the arm's seeds (spread: "
