@@ -106,7 +106,7 @@ def arm_cell(runs: dict[int, dict]) -> dict:
         "psnr": statistics.fmean(psnrs) if psnrs else None,
         "spread": max(psnrs) - min(psnrs) if len(psnrs) > 1 else None,
     }
-    for key in ("t_mae", "t_mae_true_depth", "s_mae"):
+    for key in ("t_mae", "t_mae_true_depth", "s_mae", "s_mae_true_depth"):
         vals = [v for v in (_value(r, "medium", key) for r in runs.values()) if v is not None]
         cell[key] = statistics.fmean(vals) if vals else None
     return cell
@@ -127,9 +127,14 @@ def rows_of(set_dir: Path, arms: list[tuple[str, Path, str]]) -> list[dict]:
     return rows
 
 
+def _pair(cell: dict, key: str) -> str:
+    """``key`` at the rendered depth with its value at the true depth in brackets."""
+    return f"{fmt(cell.get(key))} ({fmt(cell.get(key + '_true_depth'))})"
+
+
 def table(rows: list[dict], names: list[str]) -> str:
     head = "| scene | the photos with the true medium (best t0) | " + " | ".join(
-        f"{n}: PSNR (spread) / T MAE (at the true depth) / S MAE" for n in names
+        f"{n}: PSNR (spread) / T MAE / S MAE (at the true depth)" for n in names
     )
     lines = [head + " |", "|" + "---|" * (len(names) + 2)]
     for r in rows:
@@ -138,22 +143,23 @@ def table(rows: list[dict], names: list[str]) -> str:
         for n in names:
             c = r["arms"][n]
             spread = f" ({fmt(c['spread'], 2)})" if c["spread"] is not None else ""
-            t_cell = f"{fmt(c['t_mae'])} ({fmt(c['t_mae_true_depth'])})"
-            cells.append(f"{fmt(c['psnr'], 2)}{spread} / {t_cell} / {fmt(c['s_mae'])}")
+            medium = f"{_pair(c, 't_mae')} / {_pair(c, 's_mae')}"
+            cells.append(f"{fmt(c['psnr'], 2)}{spread} / {medium}")
         lines.append(f"| {r['scene']} | " + " | ".join(cells) + " |")
     bests = [r["true_inversion_best"][1] for r in rows if r["true_inversion_best"]]
     means = [fmt(statistics.fmean(bests), 2) if bests and len(bests) == len(rows) else "-"]
     for n in names:
         cells = [r["arms"][n] for r in rows]
-        mean = {k: [c[k] for c in cells] for k in ("psnr", "t_mae", "t_mae_true_depth", "s_mae")}
-        mean = {k: statistics.fmean(v) if v and None not in v else None for k, v in mean.items()}
-        means.append(
-            f"{fmt(mean['psnr'], 2)} / {fmt(mean['t_mae'])} ({fmt(mean['t_mae_true_depth'])}) / {fmt(mean['s_mae'])}"
-        )
+        mean = {k: [c[k] for c in cells] for k in cells[0]} if cells else {}
+        mean = {
+            k: statistics.fmean(v) if v and None not in v else None for k, v in mean.items() if k != "seeds"
+        }
+        means.append(f"{fmt(mean.get('psnr'), 2)} / {_pair(mean, 't_mae')} / {_pair(mean, 's_mae')}")
     lines.append("| **mean** | " + " | ".join(means) + " |")
     note = (
         "\nRestoration PSNR in dB over each scene's test views, mean over the arm's seeds (spread: "
-        "max - min). The true-medium inversion uses each test photo alone; t0 is the clamp "
+        "max - min). T and S MAE with the medium marched to the rendered depth (to the true depth "
+        "in brackets). The true-medium inversion uses each test photo alone; t0 is the clamp "
         f"(of {', '.join(str(t) for t in T0S)}) that scores best on the scene.\n"
     )
     return "\n".join(lines) + "\n" + note
