@@ -16,8 +16,8 @@ def tiny_hazy_scene(root: Path, **overrides) -> Path:
     return root
 
 
-def tiny_trainer(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40):
-    """The set-up ``tri-dehaze`` trainer of a short CPU run on ``scene`` (torch rasterizer, one
+def tiny_trainer(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40, method: str = "tri-dehaze"):
+    """The set-up trainer (``method``) of a short CPU run on ``scene`` (torch rasterizer, one
     thread, no evaluation), with ``extra`` command-line options; nothing trained yet."""
     from rich.console import Console
 
@@ -25,7 +25,7 @@ def tiny_trainer(scene: Path, output_dir: Path, *extra: str, max_steps: int = 40
     from tridehaze_plugin.cli.train import parse_args
 
     cfg = parse_args([
-        "tri-dehaze", "--data", str(scene), "--output-dir", str(output_dir), "--max-steps", str(max_steps),
+        method, "--data", str(scene), "--output-dir", str(output_dir), "--max-steps", str(max_steps),
         "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--no-eval-at-end",
         "--threads", "1", *extra,
     ])  # fmt: skip

@@ -7,11 +7,9 @@ from pathlib import Path
 
 import pytest
 import torch
-from rich.console import Console
 
 from pipelines.engine.trainer import Trainer
-from tests.tiny_scenes import tiny_hazy_scene
-from tridehaze_plugin.cli.train import parse_args
+from tests.tiny_scenes import tiny_hazy_scene, tiny_trainer
 from tridehaze_plugin.errors import ConfigError
 
 
@@ -24,14 +22,8 @@ def scenes(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def _trainer(method: str, data: Path, out: Path, steps: int, *extra: str) -> Trainer:
-    argv = [
-        method, "--data", str(data), "--output-dir", str(out), "--max-steps", str(steps),
-        "--device", "cpu", "--pipeline.rasterizer.backend", "torch", "--steps-per-save", "100",
-        "--no-eval-at-end", "--pipeline.medium-hold-fraction", "0", *extra,
-    ]  # fmt: skip
-    trainer = Trainer(parse_args(argv), console=Console(quiet=True))
-    trainer.setup()
-    return trainer
+    return tiny_trainer(data, out, "--steps-per-save", "100", "--pipeline.medium-hold-fraction", "0", *extra,
+                        max_steps=steps, method=method)  # fmt: skip
 
 
 def _gaussians(trainer: Trainer) -> dict[str, torch.Tensor]:
