@@ -35,6 +35,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_output import fmt, grouped_bars, psnr_of_mse, publish  # noqa: E402
+from paired_restoration import load_arm as paired_load_arm  # noqa: E402
+from paired_restoration import result_value  # noqa: E402
 
 T0S = (0.0, 0.05, 0.1, 0.15)
 """The clamps tried for the true-medium inversion (0: none)."""
@@ -82,32 +84,21 @@ def true_inversion(scene: Path) -> dict:
 def load_arm(folder: Path, method: str) -> dict[str, dict[int, dict]]:
     """scene -> seed -> the run's result, for the finished runs of one arm."""
     out: dict[str, dict[int, dict]] = {}
-    for path in sorted(folder.glob(f"seed*/results/*/{method}.json")):
-        result = json.loads(path.read_text())
-        if result.get("status") == "ok":
-            seed = int(path.parents[2].name.removeprefix("seed"))
-            out.setdefault(path.parent.name, {})[seed] = result
+    for (scene, seed), result in paired_load_arm(folder, method).items():
+        out.setdefault(scene, {})[seed] = result
     return out
-
-
-def _value(result: dict, *keys: str) -> float | None:
-    for k in keys:
-        if not isinstance(result, dict) or result.get(k) is None:
-            return None
-        result = result[k]
-    return float(result)
 
 
 def arm_cell(runs: dict[int, dict]) -> dict:
     """Mean restoration PSNR over an arm's seeds of one scene, its spread, and T / S MAE."""
-    psnrs = [v for v in (_value(r, "restoration", "psnr") for r in runs.values()) if v is not None]
+    psnrs = [v for v in (result_value(r, ("restoration", "psnr")) for r in runs.values()) if v is not None]
     cell: dict = {
         "seeds": sorted(runs),
         "psnr": statistics.fmean(psnrs) if psnrs else None,
         "spread": max(psnrs) - min(psnrs) if len(psnrs) > 1 else None,
     }
     for key in ("t_mae", "t_mae_true_depth", "s_mae", "s_mae_true_depth"):
-        vals = [v for v in (_value(r, "medium", key) for r in runs.values()) if v is not None]
+        vals = [v for v in (result_value(r, ("medium", key)) for r in runs.values()) if v is not None]
         cell[key] = statistics.fmean(vals) if vals else None
     return cell
 

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from components.data.images import default_file_mode
-from tridehaze_plugin.errors import UserError
+from tridehaze_plugin.errors import ConfigError, UserError
 
 CHECKPOINT_GLOB = "step-*.ckpt"
 ELAPSED_KEYS = ("train_seconds", "cpu_seconds")
@@ -156,6 +156,24 @@ def _schema_problem(payload: dict[str, Any]) -> str | None:
     ):
         return "'torch_rng' must be a 1-D uint8 tensor"
     return None
+
+
+def state_part(payload: dict[str, Any], prefix: str) -> dict[str, torch.Tensor]:
+    """The entries of a checkpoint's pipeline state under ``prefix`` (e.g. ``medium.``), the
+    prefix taken off, as one of the pipeline's parts loads them."""
+    return {k[len(prefix) :]: v for k, v in payload["pipeline"].items() if k.startswith(prefix)}
+
+
+def load_part_strictly(
+    module: torch.nn.Module, state: dict[str, torch.Tensor], what: str, path: Path, fix: str
+) -> None:
+    """``module.load_state_dict(state)`` (strict), a mismatch as a ConfigError that says ``what``
+    does not fit, with the first line of torch's reason, where (``path``) and ``fix``."""
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0][:160]
+        raise ConfigError(f"{what} ({first})", where=str(path), fix=fix) from None
 
 
 def load_pipeline_state(pipeline: torch.nn.Module, payload: dict[str, Any], path: Path) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from pipelines.engine.checkpoint import load_checkpoint
+from pipelines.engine.checkpoint import load_checkpoint, load_part_strictly, state_part
 from tridehaze_plugin.errors import ConfigError
 
 PREFIX = "medium."
@@ -25,7 +25,7 @@ def load_medium(field: nn.Module, path: Path) -> int:
     returns the checkpoint's step. The two must be the same backend and shape (the same method
     and dataset, so the same box)."""
     payload = load_checkpoint(path, map_location="cpu")
-    state = {k[len(PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(PREFIX)}
+    state = state_part(payload, PREFIX)
     own = field.state_dict()
     for k in ("bounds_center", "bounds_half"):
         if k in own and k in state and not torch.equal(state[k], own[k].cpu()):
@@ -34,15 +34,11 @@ def load_medium(field: nn.Module, path: Path) -> int:
                 where=str(path),
                 fix="give a checkpoint trained on the same dataset (the box comes from its cameras and points)",
             )
-    try:  # strict; the field fills in buffers that older checkpoints lack; copies onto its device
-        field.load_state_dict(state)
-    except RuntimeError as exc:
-        first = str(exc).strip().splitlines()[0][:160]
-        raise ConfigError(
-            f"--pipeline.medium-from: the checkpoint's medium is not this run's medium ({first})",
-            where=str(path),
-            fix="give a checkpoint of the same method and medium backend on the same dataset",
-        ) from None
+    # the field fills in buffers that older checkpoints lack; copies onto its device
+    load_part_strictly(
+        field, state, "--pipeline.medium-from: the checkpoint's medium is not this run's medium", path,
+        fix="give a checkpoint of the same method and medium backend on the same dataset",
+    )  # fmt: skip
     return int(payload["step"])
 
 
@@ -53,9 +49,7 @@ def load_verdict(verdict: nn.Module, path: Path) -> bool:
     flipped). Returns whether the checkpoint carried a decision (older ones or runs stopped before
     the decision step do not; the verdict is then taken as usual)."""
     payload = load_checkpoint(path, map_location="cpu")
-    state = {
-        k[len(VERDICT_PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(VERDICT_PREFIX)
-    }
+    state = state_part(payload, VERDICT_PREFIX)
     if float(state.get("decided", torch.tensor(-1.0))) == -1.0:
         return False
     verdict.load_state_dict(state)

@@ -13,7 +13,7 @@ from typing import Any
 
 from torch import nn
 
-from pipelines.engine.checkpoint import load_checkpoint
+from pipelines.engine.checkpoint import load_checkpoint, load_part_strictly, state_part
 from tridehaze_plugin.errors import ConfigError
 
 PREFIX = "model."
@@ -28,22 +28,18 @@ def load_gaussians(model: nn.Module, path: Path, frame: dict[str, Any]) -> tuple
     ``dataparser_transforms.json`` where it has one."""
     _check_frame(Path(path), frame)
     payload = load_checkpoint(path, map_location="cpu")
-    state = {k[len(PREFIX) :]: v for k, v in payload["pipeline"].items() if k.startswith(PREFIX)}
+    state = state_part(payload, PREFIX)
     if not state:
         raise ConfigError(
             "--pipeline.scene-from: the checkpoint holds no Gaussians",
             where=str(path),
             fix="give a checkpoint of a Gaussian-splatting run (vanilla-gs, tri-dehaze, ...)",
         )
-    try:  # strict; the model resizes itself to the stored count and copies onto its device
-        model.load_state_dict(state)
-    except RuntimeError as exc:
-        first = str(exc).strip().splitlines()[0][:160]
-        raise ConfigError(
-            f"--pipeline.scene-from: the checkpoint's Gaussians do not fit this model ({first})",
-            where=str(path),
-            fix="give a checkpoint whose run used the same --pipeline.model settings (SH degree)",
-        ) from None
+    # the model resizes itself to the stored count and copies onto its device
+    load_part_strictly(
+        model, state, "--pipeline.scene-from: the checkpoint's Gaussians do not fit this model", path,
+        fix="give a checkpoint whose run used the same --pipeline.model settings (SH degree)",
+    )  # fmt: skip
     count = int(next(iter(state.values())).shape[0])
     return int(payload["step"]), count
 
